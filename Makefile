@@ -1,0 +1,46 @@
+# vsgjax: see README.md. Every target that needs Python depends on `setup`.
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+TASK    ?= bbs_basic
+MODEL   ?= vsg
+SIZE    ?= auto
+SEED    ?= 0
+LOGDIR  ?= runs/$(TASK)-$(MODEL)-s$(SEED)
+ARGS    ?=
+PYTEST_ARGS ?=
+
+.PHONY: setup test test-fast bench lint train evaluate clean
+
+# Idempotent: reinstalls only when pyproject.toml changed; installs the headless
+# OpenGL library dm_control needs for rendering on machines with no GPU or display.
+setup: $(STAMP)
+$(STAMP): pyproject.toml
+	@test -d $(VENV) || $(PY) -m venv $(VENV)
+	@bash experiments/setup_headless_gl.sh
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e ".[dev]"
+	@touch $(STAMP)
+
+test: setup
+	MUJOCO_GL=osmesa PYOPENGL_PLATFORM=osmesa $(BIN)/python -m pytest -q $(PYTEST_ARGS)
+
+test-fast: setup
+	MUJOCO_GL=osmesa PYOPENGL_PLATFORM=osmesa $(BIN)/python -m pytest -q -m "not slow" $(PYTEST_ARGS)
+
+bench: setup
+	MUJOCO_GL=osmesa PYOPENGL_PLATFORM=osmesa $(BIN)/python -m experiments.bench.run_all
+
+lint: setup
+	$(BIN)/ruff check vsgjax bbs experiments tests
+
+train: setup
+	MUJOCO_GL=osmesa PYOPENGL_PLATFORM=osmesa $(BIN)/python -m vsgjax.train --task $(TASK) --model $(MODEL) \
+		--size $(SIZE) --seed $(SEED) --logdir $(LOGDIR) $(ARGS)
+
+evaluate: setup
+	MUJOCO_GL=osmesa PYOPENGL_PLATFORM=osmesa $(BIN)/python -m vsgjax.evaluate $(LOGDIR)
+
+clean:
+	rm -rf $(VENV) .pytest_cache

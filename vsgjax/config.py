@@ -1,0 +1,363 @@
+"""Configuration: frozen (hashable, jit-static) dataclasses, presets and dotted overrides.
+
+A config is built from three names and a list of overrides::
+
+    make_config(task="bbs_basic", model="vsg", size="small", overrides=["wm.kl_scale=0.3"])
+
+* the *domain* (``bbs``, ``dmc``, ``atari``) comes from the task name's prefix and selects the
+  column of the paper's hyperparameter table (``../shared/spec/model.md`` section 5);
+* the *model* (``dreamerv1``, ``dreamerv2``, ``vsg``, ``svsg``, ``ssm``) selects the latent
+  dynamics and its model-specific defaults;
+* the *size* (``paper``, ``small``, ``debug``) scales the networks: ``paper`` is the table,
+  ``small`` is CPU-friendly, ``debug`` is for tests.
+
+Unknown names, unknown keys and values of the wrong type are errors that name the bad value and
+list what is valid.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields, replace
+
+MODELS = ("dreamerv1", "dreamerv2", "vsg", "svsg", "ssm")
+SIZES = ("paper", "small", "debug")
+DOMAINS = ("bbs", "dmc", "atari")
+
+
+class ConfigError(ValueError):
+    """A malformed configuration: unknown name or key, or a value of the wrong type."""
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Latent dynamics (spec sections 1-2)."""
+
+    name: str = "vsg"
+    deter: int = 1024  # deterministic state size (0 for the purely stochastic svsg / ssm)
+    hidden: int = 1024  # width of the dense layers inside the dynamics
+    stoch: int = 32  # Gaussian dims, or number of categorical variables
+    classes: int = 32  # classes per categorical variable; 0 means Gaussian latents
+    cell_norm: bool = False  # LayerNorm over the GRU's 3*D pre-activations
+    min_std: float = 0.1  # Gaussian std = 2*sigmoid(s/2) + min_std
+    gate_mode: str = "sample"  # "sample" (the release: Bernoulli everywhere) or "threshold" (p>0.5)
+    gate_bias: float = -1.0  # update-gate bias: p = sigmoid(u + gate_bias)
+
+
+@dataclass(frozen=True)
+class WorldModelConfig:
+    """Encoder, decoder, heads, world-model loss and its optimizer (spec section 3)."""
+
+    cnn_depth: int = 48
+    mlp_layers: int = 4
+    mlp_units: int = 400
+    reward_layers: int = 4
+    discount_layers: int = 4
+    kl_scale: float = 1.0
+    kl_balance: float = 0.8  # fraction of the KL gradient that trains the prior
+    kl_free: float = 0.0  # free nats on the batch mean of the per-step KL
+    kl_masked: bool = False  # SVSG: multiply the per-dimension KL by the gate sample
+    gate_alpha: float = 0.1  # sparsity loss scale (0 = the NoSparsityLoss ablation)
+    gate_kappa: float = 0.3  # prior gate probability
+    gate_free: float = 0.1  # free nats of the sparsity loss
+    reward_scale: float = 1.0
+    reward_tanh: bool = False  # Atari: train on tanh(reward)
+    discount_head: bool = True
+    discount_scale: float = 1.0
+    lr: float = 1e-4
+    eps: float = 1e-5
+    clip: float = 100.0
+    weight_decay: float = 1e-6
+
+
+@dataclass(frozen=True)
+class BehaviourConfig:
+    """Imagination actor-critic (spec section 4)."""
+
+    horizon: int = 15
+    gamma: float = 0.99
+    lam: float = 0.95
+    actor_layers: int = 4
+    critic_layers: int = 4
+    actor_lr: float = 8e-5
+    critic_lr: float = 2e-4
+    actor_grad: str = "auto"  # "dynamics", "reinforce", "both" or "auto" (by action space)
+    actor_grad_mix: float = 0.0  # weight of the dynamics gradient when actor_grad == "both"
+    actor_min_std: float = 0.1
+    entropy: float = 2e-3
+    slow_critic_every: int = 100
+    eps: float = 1e-5
+    clip: float = 100.0
+    weight_decay: float = 1e-6
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    task: str = "bbs_basic"
+    action_repeat: int = 4
+    time_limit: int = 3000  # in env steps (physics sub-steps / frames), before action repeat
+    image_size: int = 64
+    grayscale: bool = False
+    sticky: float = 0.0  # Atari sticky-action probability
+    num_envs: int = 1
+    eval_envs: int = 1
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    seed: int = 0
+    steps: int = 2_500_000  # env steps (counting action repeat)
+    batch: int = 16
+    length: int = 50
+    train_every: int = 5  # agent steps per update
+    prefill: int = 10_000  # env steps of random actions before training
+    replay_capacity: int = 2_000_000  # in stored steps
+    oversample_ends: bool = False
+    eval_every: int = 100_000  # env steps
+    eval_episodes: int = 10
+    log_every: int = 1_000  # env steps
+    ckpt_every: int = 1_000  # updates
+    video_every: int = 100_000  # env steps; open-loop prediction and eval videos
+
+
+@dataclass(frozen=True)
+class Config:
+    domain: str = "bbs"
+    size: str = "paper"
+    model: ModelConfig = field(default_factory=ModelConfig)
+    wm: WorldModelConfig = field(default_factory=WorldModelConfig)
+    ac: BehaviourConfig = field(default_factory=BehaviourConfig)
+    env: EnvConfig = field(default_factory=EnvConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+
+# --- presets ---------------------------------------------------------------------------------
+# Each preset is a dict of dotted keys applied in order: domain, model, domain+model, size.
+
+_DOMAIN = {
+    "bbs": {
+        "env.action_repeat": 4, "env.time_limit": 3000,
+        "model.deter": 1024, "model.hidden": 1024,
+        "wm.cnn_depth": 48, "wm.mlp_layers": 4, "wm.mlp_units": 400,
+        "wm.reward_layers": 4, "wm.discount_layers": 4,
+        "wm.kl_scale": 1.0, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
+        "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.3, "wm.gate_free": 0.1,
+        "wm.lr": 1e-4, "wm.discount_head": True, "wm.discount_scale": 1.0,
+        "wm.reward_scale": 1.0, "wm.weight_decay": 1e-6,
+        "ac.actor_lr": 8e-5, "ac.critic_lr": 2e-4, "ac.gamma": 0.99, "ac.entropy": 2e-3,
+        "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
+        "train.batch": 16, "train.train_every": 5, "train.prefill": 10_000,
+        "train.steps": 2_500_000, "train.eval_every": 100_000,
+    },
+    "dmc": {
+        "env.action_repeat": 2, "env.time_limit": 1000,
+        "model.deter": 1024, "model.hidden": 1024,
+        "wm.cnn_depth": 32, "wm.mlp_layers": 4, "wm.mlp_units": 400,
+        "wm.reward_layers": 2, "wm.discount_layers": 2,
+        "wm.kl_scale": 1.0, "wm.kl_balance": 0.8, "wm.kl_free": 1.0,
+        "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.4, "wm.gate_free": 0.1,
+        "wm.lr": 3e-4, "wm.discount_head": False, "wm.reward_scale": 2.0,
+        "wm.weight_decay": 0.0,
+        "ac.actor_lr": 8e-5, "ac.critic_lr": 8e-5, "ac.gamma": 0.99, "ac.entropy": 1e-4,
+        "ac.actor_layers": 4, "ac.critic_layers": 3, "ac.weight_decay": 0.0,
+        "train.batch": 50, "train.train_every": 5, "train.prefill": 2500,
+        "train.steps": 1_000_000, "train.eval_every": 10_000,
+    },
+    "atari": {
+        "env.action_repeat": 4, "env.time_limit": 108_000, "env.grayscale": True,
+        "env.sticky": 0.25,
+        "model.deter": 600, "model.hidden": 600,
+        "wm.cnn_depth": 48, "wm.mlp_layers": 4, "wm.mlp_units": 400,
+        "wm.reward_layers": 4, "wm.discount_layers": 4,
+        "wm.kl_scale": 0.1, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
+        "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.4, "wm.gate_free": 0.1,
+        "wm.lr": 2e-4, "wm.discount_head": True, "wm.discount_scale": 5.0,
+        "wm.reward_scale": 1.0, "wm.reward_tanh": True, "wm.weight_decay": 1e-6,
+        "ac.actor_lr": 4e-5, "ac.critic_lr": 1e-4, "ac.gamma": 0.999, "ac.entropy": 1e-3,
+        "ac.actor_grad": "reinforce",
+        "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
+        "train.batch": 16, "train.train_every": 16, "train.prefill": 50_000,
+        "train.steps": 50_000_000, "train.eval_every": 250_000,
+    },
+}
+
+_MODEL = {
+    "dreamerv1": {"model.stoch": 30, "model.classes": 0, "model.cell_norm": True},
+    "dreamerv2": {"model.stoch": 32, "model.classes": 32, "model.cell_norm": True},
+    "vsg": {"model.stoch": 32, "model.classes": 32, "model.cell_norm": False},
+    "svsg": {"model.deter": 0, "model.stoch": 1024, "model.classes": 0,
+             "model.cell_norm": False, "wm.kl_masked": True},
+    "ssm": {"model.deter": 0, "model.stoch": 30, "model.classes": 0, "model.cell_norm": False},
+}
+
+_DOMAIN_MODEL = {
+    ("bbs", "svsg"): {"wm.kl_free": 1.0},
+    ("dmc", "dreamerv1"): {"model.deter": 200, "model.hidden": 200},
+}
+
+_SIZE = {
+    "paper": {},
+    "small": {
+        "model.deter": 256, "model.hidden": 256, "wm.cnn_depth": 16,
+        "wm.mlp_layers": 2, "wm.mlp_units": 256, "wm.reward_layers": 2,
+        "wm.discount_layers": 2, "ac.actor_layers": 2, "ac.critic_layers": 2,
+        "train.batch": 16, "train.prefill": 1000, "train.steps": 200_000,
+        "train.eval_every": 10_000, "train.eval_episodes": 2,
+        "train.replay_capacity": 500_000,
+    },
+    "debug": {
+        "model.deter": 32, "model.hidden": 32, "wm.cnn_depth": 4,
+        "wm.mlp_layers": 1, "wm.mlp_units": 32, "wm.reward_layers": 1,
+        "wm.discount_layers": 1, "ac.actor_layers": 1, "ac.critic_layers": 1,
+        "ac.horizon": 5, "train.batch": 4, "train.length": 10, "train.prefill": 100,
+        "train.steps": 400, "train.train_every": 10, "train.eval_every": 200,
+        "train.eval_episodes": 1, "train.log_every": 50, "train.ckpt_every": 5,
+        "train.video_every": 200, "train.replay_capacity": 10_000,
+    },
+}
+
+# Latent sizes per model at the small / debug sizes (the stochastic state shrinks with the rest).
+_SIZE_MODEL = {
+    ("small", "svsg"): {"model.deter": 0, "model.stoch": 256},
+    ("small", "ssm"): {"model.deter": 0},
+    ("small", "dreamerv2"): {"model.stoch": 16, "model.classes": 16},
+    ("small", "vsg"): {"model.stoch": 16, "model.classes": 16},
+    ("debug", "svsg"): {"model.deter": 0, "model.stoch": 32},
+    ("debug", "ssm"): {"model.deter": 0, "model.stoch": 8},
+    ("debug", "dreamerv1"): {"model.stoch": 8},
+    ("debug", "dreamerv2"): {"model.stoch": 4, "model.classes": 4},
+    ("debug", "vsg"): {"model.stoch": 4, "model.classes": 4},
+}
+
+
+def domain_of(task: str) -> str:
+    """The domain a task name belongs to: its prefix before the first underscore."""
+    prefix = task.split("_", 1)[0]
+    if prefix not in DOMAINS or "_" not in task:
+        raise ConfigError(
+            f"unknown task {task!r}: task names look like "
+            "bbs_<variant>, dmc_<domain>_<task> or atari_<game>"
+        )
+    return prefix
+
+
+def _check_name(kind: str, value: str, valid: Sequence[str]) -> None:
+    if value not in valid:
+        raise ConfigError(f"unknown {kind} {value!r}; valid: {', '.join(valid)}")
+
+
+def make_config(
+    task: str = "bbs_basic",
+    model: str = "vsg",
+    size: str = "paper",
+    overrides: Sequence[str] = (),
+) -> Config:
+    """Resolve presets for (task's domain, model, size), then apply ``key=value`` overrides."""
+    domain = domain_of(task)
+    _check_name("model", model, MODELS)
+    _check_name("size", size, SIZES)
+    config = Config(domain=domain, size=size, model=ModelConfig(name=model),
+                    env=EnvConfig(task=task))
+    layers = (
+        _DOMAIN[domain], _MODEL[model], _DOMAIN_MODEL.get((domain, model), {}),
+        _SIZE[size], _SIZE_MODEL.get((size, model), {}),
+    )
+    for preset in layers:
+        config = apply_values(config, preset)
+    return apply_overrides(config, overrides)
+
+
+def apply_overrides(config: Config, overrides: Sequence[str]) -> Config:
+    """Apply command-line style ``section.key=value`` strings (values parsed by field type)."""
+    values = {}
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ConfigError(f"override {item!r} is not of the form section.key=value")
+        values[key.strip()] = _parse(key.strip(), text.strip(), _field_type(key.strip()))
+    return apply_values(config, values)
+
+
+def apply_values(config: Config, values: dict) -> Config:
+    """Apply a dict of dotted keys to typed values, checking every key and type."""
+    for key, value in values.items():
+        section, name = _split_key(key)
+        kind = _field_type(key)
+        value = _coerce(key, value, kind)
+        config = replace(config, **{section: replace(getattr(config, section), **{name: value})})
+    return config
+
+
+def _sections() -> dict[str, type]:
+    hints = typing.get_type_hints(Config)
+    return {f.name: hints[f.name] for f in fields(Config) if dataclasses.is_dataclass(hints[f.name])}
+
+
+def _split_key(key: str) -> tuple[str, str]:
+    sections = _sections()
+    section, sep, name = key.partition(".")
+    if not sep or section not in sections:
+        raise ConfigError(f"unknown config key {key!r}; sections: {', '.join(sections)}")
+    valid = [f.name for f in fields(sections[section])]
+    if name not in valid:
+        raise ConfigError(f"unknown config key {key!r}; valid keys of {section!r}: {', '.join(valid)}")
+    return section, name
+
+
+def _field_type(key: str) -> type:
+    section, name = _split_key(key)
+    return typing.get_type_hints(_sections()[section])[name]
+
+
+def _parse(key: str, text: str, kind: type):
+    if kind is bool:
+        lowered = text.lower()
+        if lowered in ("true", "1", "yes"):
+            return True
+        if lowered in ("false", "0", "no"):
+            return False
+        raise ConfigError(f"config key {key!r} wants a bool (true/false), got {text!r}")
+    if kind in (int, float):
+        try:
+            return kind(float(text)) if kind is int and _is_integral(text) else kind(text)
+        except ValueError:
+            raise ConfigError(f"config key {key!r} wants {kind.__name__}, got {text!r}") from None
+    return text
+
+
+def _is_integral(text: str) -> bool:
+    try:
+        return float(text).is_integer() and ("e" in text.lower() or "." in text)
+    except ValueError:
+        return False
+
+
+def _coerce(key: str, value, kind: type):
+    if isinstance(kind, types.UnionType):
+        raise ConfigError(f"config key {key!r} has an unsupported type {kind}")
+    if kind is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)):
+        raise ConfigError(
+            f"config key {key!r} wants {kind.__name__}, got {value!r} ({type(value).__name__})"
+        )
+    return value
+
+
+def to_dict(config: Config) -> dict:
+    """A JSON-serialisable nested dict (saved as the run's resolved config)."""
+    return dataclasses.asdict(config)
+
+
+def from_dict(data: dict) -> Config:
+    """Inverse of :func:`to_dict`; rejects unknown keys like :func:`apply_values`."""
+    top = {k: v for k, v in data.items() if k not in _sections()}
+    unknown = set(top) - {"domain", "size"}
+    if unknown:
+        raise ConfigError(f"unknown top-level config keys {sorted(unknown)}")
+    config = Config(**top)
+    values = {f"{s}.{k}": v for s in _sections() for k, v in data.get(s, {}).items()}
+    return apply_values(config, values)
