@@ -1,0 +1,31 @@
+"""vsgjax: world-model reinforcement learning with Variational Sparse Gating, in JAX.
+
+Public API (imported lazily, so ``import vsgjax`` stays cheap)::
+
+    config = vsgjax.make_config(task="bbs_basic", model="vsg", size="small")
+    state = vsgjax.init(config, key, obs_shape=(64, 64, 3), action_dim=2)
+    state, metrics, posts = vsgjax.train_step(config, state, batch, key)
+    rollout = vsgjax.imagine(state.params, start, H=15, config=config, key=key)
+"""
+
+import importlib
+
+_EXPORTS = {
+    "make_config": "vsgjax.config",
+    "Config": "vsgjax.config",
+    "ConfigError": "vsgjax.config",
+    "make_dynamics": "vsgjax.dynamics",
+    "WorldModel": "vsgjax.world_model",
+    "init": "vsgjax.api",
+    "train_step": "vsgjax.api",
+    "imagine": "vsgjax.api",
+    "Agent": "vsgjax.agent",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'vsgjax' has no attribute {name!r}")
+    return getattr(importlib.import_module(_EXPORTS[name]), name)
