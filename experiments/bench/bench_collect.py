@@ -1,0 +1,212 @@
+"""Collection benchmark: bare env step rates and the cost of the host boundary per agent step.
+
+For each (env, N envs, driver) we time, per agent step (median over repeats, compilation
+excluded and reported separately):
+
+* ``collect``: :meth:`vsgjax.collect.Collector.run` over a chunk;
+* ``env``: :meth:`vsgjax.collect.EnvBatch.step` alone in a Python loop (same envs, same
+  recording), with precomputed actions;
+* ``policy``: the policy alone, ``jax.lax.scan`` over the chunk on a fixed observation;
+* ``boundary = collect - env - policy``: what crossing between JAX and Python costs.
+
+Policies: a small recurrent stand-in for the agent (pooled image -> dense -> GRU-like update ->
+tanh action, state reset on ``is_first``), so the boundary, not the network, dominates; and the
+real agent's ``policy_step`` at the ``small`` size (VSG, 61 parameter arrays), at the training
+loop's chunk of 5 steps and at 50.
+Run: ``python -m experiments.bench.bench_collect``.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from vsgjax.collect import DEFAULT_CHUNK, Collector, EnvBatch, make_env_batch
+from vsgjax.config import make_config
+from vsgjax.envs import make_env
+from vsgjax.envs.fake import FakeImageEnv
+from vsgjax.envs.wrappers import DefaultSeed
+
+RESULTS = Path(__file__).parent / "results" / "collect.md"
+HIDDEN = 256
+REPEATS = 7
+TRAIN_CHUNK = 5  # the training loop's chunk: train_every agent steps
+
+
+def fake_env(seed: int):
+    return DefaultSeed(FakeImageEnv(length=200, action_dim=2), seed)
+
+
+def fake_batch(num_envs: int) -> EnvBatch:
+    return EnvBatch([functools.partial(fake_env, i) for i in range(num_envs)])
+
+
+def standin_policy(params, carry, obs, key):
+    """Pooled image -> dense -> gated recurrent update -> tanh action with Gaussian noise."""
+    image = obs["image"].astype(jnp.float32) / 255.0 - 0.5
+    n, h, w, c = image.shape
+    pooled = image.reshape(n, 8, h // 8, 8, w // 8, c).mean((2, 4)).reshape(n, -1)
+    carry = jnp.where(obs["is_first"][:, None], 0.0, carry)
+    x = jax.nn.elu(pooled @ params["embed"])
+    gate = jax.nn.sigmoid(jnp.concatenate([x, carry], -1) @ params["gate"])
+    carry = gate * jnp.tanh(x + carry @ params["recur"]) + (1 - gate) * carry
+    mean = jnp.tanh(carry @ params["out"])
+    return carry, jnp.clip(mean + 0.3 * jax.random.normal(key, mean.shape), -1.0, 1.0)
+
+
+def standin_params(obs_shape, action_dim, key):
+    in_dim = 64 * obs_shape[-1]
+    shapes = {"embed": (in_dim, HIDDEN), "gate": (2 * HIDDEN, HIDDEN),
+              "recur": (HIDDEN, HIDDEN), "out": (HIDDEN, action_dim)}
+    keys = jax.random.split(key, len(shapes))
+    return {name: jax.random.normal(k, shape) / np.sqrt(shape[0])
+            for (name, shape), k in zip(shapes.items(), keys, strict=True)}
+
+
+def median_time(fn, repeats: int = REPEATS) -> np.ndarray:
+    """Median (wall seconds, CPU seconds of this process) of ``fn()``.
+
+    CPU time is robust to other processes competing for the cores (wall time is not): it
+    counts what this process itself spends, in every thread. Worker processes are excluded.
+    """
+    times = []
+    for _ in range(repeats):
+        wall, cpu = time.perf_counter(), time.process_time()
+        fn()
+        times.append((time.perf_counter() - wall, time.process_time() - cpu))
+    return np.median(np.array(times), axis=0)
+
+
+def time_policy(policy, params, carry, obs, chunk: int) -> np.ndarray:
+    """(wall, CPU) seconds per step of the policy alone, scanned over a chunk on a fixed obs."""
+
+    @jax.jit
+    def scan(params, carry, obs, key):
+        def body(carry, step_key):
+            carry, action = policy(params, carry, obs, step_key)
+            return carry, action
+        return jax.lax.scan(body, carry, jax.random.split(key, chunk))
+
+    jax.block_until_ready(scan(params, carry, obs, jax.random.PRNGKey(0)))
+    return median_time(lambda: jax.block_until_ready(
+        scan(params, carry, obs, jax.random.PRNGKey(1)))) / chunk
+
+
+def time_env(envs: EnvBatch, chunk: int) -> np.ndarray:
+    """(wall, CPU) seconds per step of the host-side batched env step alone."""
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (chunk, envs.num_envs, envs.spec.action_dim)).astype(np.float32)
+    envs.reset()
+
+    def steps():
+        for action in actions:
+            envs.step(action)
+
+    steps()
+    return median_time(steps) / chunk
+
+
+def time_collect(envs: EnvBatch, mode: str, chunk: int, policy, params,
+                 carry) -> tuple[np.ndarray, float]:
+    """((wall, CPU) seconds per step of Collector.run, seconds of the first call incl. compile)."""
+    collector = Collector(envs, policy, chunk=chunk, mode=mode)
+    start = time.perf_counter()
+    carry, _ = collector.run(params, carry, jax.random.PRNGKey(0))
+    first = time.perf_counter() - start
+    keys = iter(jax.random.split(jax.random.PRNGKey(1), REPEATS))
+    per_step = median_time(lambda: collector.run(params, carry, next(keys))) / chunk
+    return per_step, first
+
+
+def boundary_rows(name: str, make_batch, chunk: int, policy_name: str = "stand-in",
+                  num_envs_list=(1, 2)) -> list[str]:
+    rows = []
+    for num_envs in num_envs_list:
+        envs = make_batch(num_envs)
+        policy, params, carry = make_policy(policy_name, envs)
+        obs = {k: jnp.asarray(v) for k, v in envs.reset().items()}
+        policy_t = time_policy(policy, params, carry, obs, chunk)
+        env_t = time_env(envs, chunk)
+        for mode in ("scan", "loop"):
+            collect_t, first_s = time_collect(envs, mode, chunk, policy, params, carry)
+            boundary = collect_t - env_t - policy_t
+            rows.append(f"| {name} | {policy_name} | {num_envs} | {chunk} | {mode} | "
+                        + " | ".join(f"{w * 1e6:.0f} / {c * 1e6:.0f}" for w, c in
+                                     (collect_t, env_t, policy_t))
+                        + f" | **{boundary[0] * 1e6:.0f} / {boundary[1] * 1e6:.0f}** | "
+                        f"{first_s:.2f} |")
+            print(rows[-1], flush=True)
+        envs.close()
+    return rows
+
+
+def make_policy(name: str, envs: EnvBatch):
+    """(policy, params, initial carry): the stand-in, or the real agent's acting step."""
+    spec = envs.spec
+    if name == "stand-in":
+        params = standin_params(spec.obs_shape, spec.action_dim, jax.random.PRNGKey(0))
+        return standin_policy, params, jnp.zeros((envs.num_envs, HIDDEN))
+    from vsgjax.agent import Agent
+
+    agent = Agent(make_config("bbs_basic", "vsg", name.removeprefix("vsg-")),
+                  spec.obs_shape, spec.action_dim, spec.discrete)
+
+    def policy(params, carry, obs, key):
+        return agent.policy_step(params, carry, obs, key, mode="train")
+
+    params = agent.init(jax.random.PRNGKey(0)).params
+    return policy, params, agent.initial_carry(envs.num_envs)
+
+
+def bare_env_rate(task: str, steps: int) -> tuple[float, float]:
+    """Agent steps per second (and env steps per second) of one env with random actions."""
+    env_cfg = make_config(task, size="debug").env
+    env = make_env(env_cfg, seed=0)
+    env.reset()
+
+    def run():
+        for _ in range(steps):
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            if terminated or truncated:
+                env.reset()
+
+    run()
+    seconds = median_time(run, repeats=3)[0]
+    env.close()
+    return steps / seconds, steps * env_cfg.action_repeat / seconds
+
+
+def main() -> None:
+    chunk = DEFAULT_CHUNK
+    lines = ["## Collection (`vsgjax/collect.py`, `vsgjax/envs/`)", "",
+             "Bare env step rates, one env in one process, random actions:", "",
+             "| task | agent steps/s | env steps/s (x action repeat) |", "|---|---|---|"]
+    for task, steps in (("bbs_basic", 300), ("dmc_walker_walk", 30), ("atari_pong", 300)):
+        agent_rate, env_rate = bare_env_rate(task, steps)
+        lines.append(f"| {task} | {agent_rate:.0f} | {env_rate:.0f} |")
+        print(lines[-1], flush=True)
+    lines += ["", f"Per agent step, microseconds as **wall / CPU** (CPU: this process, all "
+              f"threads; robust to other load on the machine), median of {REPEATS} chunks, "
+              "compilation excluded (`first call` includes it). `boundary = collect - env - "
+              "policy` is the cost of crossing between JAX and Python. N = 2 runs the envs in "
+              "worker processes (their CPU time is not counted).", "",
+              "| env | policy | N | chunk | driver | collect | env | policy | boundary "
+              "| first call (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    lines += boundary_rows("fake", fake_batch, chunk)
+    lines += boundary_rows("fake", fake_batch, TRAIN_CHUNK, "vsg-small", (1,))
+    lines += boundary_rows("fake", fake_batch, chunk, "vsg-small", (1,))
+    bbs_cfg = make_config("bbs_basic", size="debug").env
+    lines += boundary_rows("bbs_basic", lambda n: make_env_batch(bbs_cfg, 0, n), chunk)
+    text = "\n".join(lines) + "\n"
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

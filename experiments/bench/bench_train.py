@@ -1,0 +1,152 @@
+"""Training-loop throughput of ``small`` VSG, and the loop's own overhead.
+
+For each task, a :class:`vsgjax.train.Trainer` is warmed up (prefill, compilation, first
+updates), then a window of ``WINDOW`` agent steps of the steady-state loop is timed at the
+default train ratio (one update per ``train_every`` agent steps; evaluation disabled; logging,
+episode writing and checkpointing as configured). The same amounts of work are then timed bare:
+
+* env: the same number of agent steps of a plain gymnasium env with random actions;
+* train: the same number of ``Agent.train_step`` calls on replay batches (compiled already);
+* policy: the same number of jitted ``policy_step`` calls on one observation.
+
+overhead = loop - (env + train + policy): the collection boundary (io_callback, episode
+recording), replay (adds and sampling), MCAP writing and logging. Medians over ``REPEATS``.
+Replay memory: bytes per stored step (uint8 images) times one million frames.
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from vsgjax.config import make_config
+from vsgjax.envs import make_env
+from vsgjax.train import Trainer
+
+TASKS = ("bbs_basic", "dmc_walker_walk")
+WINDOW = 100  # agent steps per timed window
+REPEATS = 3
+RESULTS = Path(__file__).parent / "results" / "train.md"
+
+
+def warm_trainer(task: str, logdir: Path) -> tuple[Trainer, float]:
+    """A small-VSG trainer past prefill with a few updates done; returns it and the warm-up time."""
+    config = make_config(task, "vsg", "small", ["train.eval_every=100000000",
+                                                "train.video_every=100000000"])
+    started = time.perf_counter()
+    trainer = Trainer(config, logdir, progress=False)
+    while trainer.counters.updates < 3:
+        trainer.iteration()
+    return trainer, time.perf_counter() - started
+
+
+def time_loop(trainer: Trainer) -> tuple[float, int]:
+    """Seconds for WINDOW agent steps of the loop, and the updates it made."""
+    start_steps, start_updates = trainer.counters.agent_steps, trainer.counters.updates
+    started = time.perf_counter()
+    while trainer.counters.agent_steps - start_steps < WINDOW:
+        trainer.iteration()
+    jax.block_until_ready(trainer.state)
+    return time.perf_counter() - started, trainer.counters.updates - start_updates
+
+
+def time_env(task_config, steps: int) -> float:
+    env = make_env(task_config.env, seed=123)  # also seeds the action space
+    env.reset()
+    started = time.perf_counter()
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+        if terminated or truncated:
+            env.reset()
+    elapsed = time.perf_counter() - started
+    env.close()
+    return elapsed
+
+
+def time_train(trainer: Trainer, updates: int) -> float:
+    state, total = trainer.state, 0.0
+    for _ in range(updates):
+        batch = trainer.replay.sample(trainer.config.train.batch)  # sampling not timed
+        started = time.perf_counter()
+        state, metrics = trainer.agent.train_step(state, batch, jax.random.PRNGKey(0))
+        jax.block_until_ready(metrics)
+        total += time.perf_counter() - started
+    return total
+
+
+def time_policy(trainer: Trainer, steps: int) -> float:
+    agent, spec = trainer.agent, trainer.collector.envs.spec
+    carry = agent.initial_carry(1)
+    obs = {"image": np.zeros((1, *spec.obs_shape), np.uint8), "is_first": np.zeros(1, bool)}
+    key = jax.random.PRNGKey(0)
+    jax.block_until_ready(agent.policy_step(trainer.state.params, carry, obs, key))
+    started = time.perf_counter()
+    for _ in range(steps):
+        carry, action = agent.policy_step(trainer.state.params, carry, obs, key)
+        np.asarray(action)
+    return time.perf_counter() - started
+
+
+def bench_task(task: str) -> dict:
+    with tempfile.TemporaryDirectory() as logdir:
+        trainer, warmup = warm_trainer(task, Path(logdir))
+        try:
+            loops = [time_loop(trainer) for _ in range(REPEATS)]
+            updates = int(statistics.median(u for _, u in loops))
+            row = {
+                "task": task, "warmup_s": warmup, "updates": updates,
+                "train_every": trainer.config.train.train_every,
+                "repeat": trainer.config.env.action_repeat,
+                "loop": statistics.median(t for t, _ in loops),
+                "env": statistics.median(time_env(trainer.config, WINDOW) for _ in range(REPEATS)),
+                "train": statistics.median(time_train(trainer, updates) for _ in range(REPEATS)),
+                "policy": statistics.median(time_policy(trainer, WINDOW) for _ in range(REPEATS)),
+                "bytes_per_step": trainer.replay.bytes_per_step,
+            }
+        finally:
+            trainer.close()
+    row["overhead"] = row["loop"] - row["env"] - row["train"] - row["policy"]
+    return row
+
+
+def markdown(rows: list[dict]) -> str:
+    lines = [
+        "## Training loop (small VSG, default train ratio)",
+        "",
+        f"Timed window: {WINDOW} agent steps of the steady-state loop (after prefill and "
+        f"compilation), median of {REPEATS}. Bare times are the same amount of work alone: env "
+        "steps with random actions, `train_step` calls, jitted `policy_step` calls. Overhead = "
+        "loop − (env + train + policy): collection boundary, replay, episode files, logging.",
+        "",
+        "| task | env steps/s (loop) | loop s | env s | train s (updates) | policy s "
+        "| overhead s | overhead % | warm-up s |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        rate = WINDOW * r["repeat"] / r["loop"]
+        lines.append(
+            f"| {r['task']} | {rate:.1f} | {r['loop']:.2f} | {r['env']:.2f} | "
+            f"{r['train']:.2f} ({r['updates']}) | {r['policy']:.2f} | {r['overhead']:.2f} | "
+            f"{100 * r['overhead'] / r['loop']:.1f} | {r['warmup_s']:.0f} |")
+    lines += ["", "Replay memory (uint8 images, one stored step per agent step):", ""]
+    for r in rows:
+        lines.append(f"- {r['task']}: {r['bytes_per_step']} bytes/step = "
+                     f"{r['bytes_per_step'] * 1e6 / 2**30:.2f} GiB per million frames")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    rows = [bench_task(task) for task in TASKS]
+    text = markdown(rows)
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()

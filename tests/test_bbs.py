@@ -1,0 +1,541 @@
+"""BringBackShapes environment: spec constants, physics, scoring, options, determinism, pixels."""
+
+import hashlib
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+
+import bbs
+from bbs.discovery import DiscoveryTracker
+from bbs.geometry import arena_geometry
+from bbs.layout import parse_layout
+from bbs.physics import DAMPING_PER_STEP, DT, Simulation
+from bbs.render import VIEW_PALETTE, view_colour
+
+RIGHT = np.array([-1.0, 1.0], np.float32)  # normalised: angle 0 (towards the goal), force 400
+SQUARE_COLOURS = ("orange", "blue", "green", "red", "purple")
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def square(x, y, colour="red", shape="square", angle=0.0):
+    return {"position": (x, y), "angle": angle, "shape": shape, "colour": colour}
+
+
+def layout(agent=(300.0, 350.0), objects=(), distractors=(), goal_y=None, agent_angle=0.0):
+    return {"agent": {"position": agent, "angle": agent_angle}, "objects": list(objects),
+            "distractors": [{"position": d} for d in distractors], "goal_y": goal_y}
+
+
+def simulation(spec, scale=1.0, odd_force_point=True):
+    geometry = arena_geometry(scale)
+    return Simulation(geometry, parse_layout(spec, geometry.goal_y_range), odd_force_point)
+
+
+def digest(arrays) -> str:
+    h = hashlib.sha256()
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+# ------------------------------------------------------------------------------------ spec
+@pytest.mark.parametrize("scale, expected", [
+    (1.0, (800, 700, 575, 237.5, 225.0)),
+    (1.4, (1120, 979, 895, 307.25, 364.5)),
+])
+def test_arena_geometry_matches_spec(scale, expected):
+    g = arena_geometry(scale)
+    assert (g.width, g.length, g.goal_x, g.goal_y, g.goal_height) == expected
+    gbh = (g.length - g.goal_height - 250) / 2
+    left, right, top, bottom, goal_top, goal_bottom = g.walls
+    assert (left.x1, right.x0, top.y1, bottom.y0) == (125, g.width - 125, 125, g.length - 125)
+    assert (goal_top.x0, goal_top.x1, goal_top.y0, goal_top.y1) == (g.goal_x, g.width - 125, 125,
+                                                                    125 + gbh)
+    assert (goal_bottom.y0, goal_bottom.y1) == (g.length - 125 - gbh, g.length - 125)
+    assert g.score_x == g.goal_x + 5
+
+
+def test_effective_masses_and_space_settings():
+    sim = simulation(layout(objects=[square(200, 200)], distractors=[(400, 400)]))
+    assert sim.agent.mass == pytest.approx(70.686, abs=1e-3)
+    assert sim.agent.moment == pytest.approx(7952.16, abs=1e-2)
+    kite = sim.distractors[0].body
+    assert kite.mass == pytest.approx(60.0) and kite.moment == pytest.approx(6583.33, abs=1e-2)
+    assert tuple(kite.center_of_gravity) == pytest.approx((-20 / 3, 0.0))
+    obj = sim.object_bodies[0]
+    assert (obj.mass, obj.moment) == (20.0, 1e6)
+    assert sim.space.damping == 0.7 and sim.space.iterations == 10
+    assert DAMPING_PER_STEP == pytest.approx(0.994073, abs=1e-6)
+
+
+def test_default_episode_lasts_751_agent_steps():
+    env = bbs.BringBackShapesEnv()
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    steps, truncated, terminated = 0, False, False
+    while not (truncated or terminated):
+        _, _, terminated, truncated, info = env.step(rng.uniform(-1, 1, 2))
+        steps += 1
+    assert (steps, truncated, terminated, info["sub_steps"]) == (751, True, False, 3002)
+    assert info["discovery"]["episode_length"] == 751
+
+
+@pytest.mark.parametrize("time_limit, repeat, steps", [(10, 4, 3), (9, 4, 3), (0, 1, 2), (5, 3, 3)])
+def test_time_limit_counts_sub_steps_like_the_original(time_limit, repeat, steps):
+    env = bbs.BringBackShapesEnv(time_limit=time_limit, action_repeat=repeat)
+    env.reset(seed=1)
+    for i in range(steps):
+        _, _, _, truncated, info = env.step(RIGHT)
+        assert truncated == (i == steps - 1)
+    assert info["sub_steps"] == time_limit + 2
+
+
+# ------------------------------------------------------------------------------------ physics
+def test_force_is_100_applications_in_closed_form():
+    sim = simulation(layout(agent=(200.0, 500.0), objects=[square(400, 200)]))
+    sim.control_and_score(0.0, 400.0, np.random.default_rng(0))
+    sim.advance()
+    force_total, torque_total = 100 * 400.0, 100 * (500.0 - 200.0) * 400.0
+    assert sim.agent.velocity.x == pytest.approx(force_total / sim.agent.mass * DT, rel=1e-9)
+    assert sim.agent.angular_velocity == pytest.approx(torque_total / sim.agent.moment * DT,
+                                                       rel=1e-9)
+    centred = simulation(layout(agent=(200.0, 500.0), objects=[square(400, 200)]),
+                         odd_force_point=False)
+    centred.control_and_score(0.0, 400.0, np.random.default_rng(0))
+    centred.advance()
+    assert centred.agent.angular_velocity == 0.0
+    assert centred.agent.velocity.x == sim.agent.velocity.x
+
+
+def test_goal_clamp_torque_and_velocity_flip():
+    sim = simulation(layout(agent=(300.0, 350.0), objects=[square(200, 200)]))
+    sim.agent.position, sim.agent.velocity = (570.0, 350.0), (100.0, 40.0)
+    sim.control_and_score(0.0, 400.0, np.random.default_rng(0))
+    assert tuple(sim.agent.position) == (560.0, 350.0)
+    assert tuple(sim.agent.velocity) == pytest.approx((-30.0, -12.0))
+    expected_torque = 400.0 * ((350.0 - 570.0) + 99 * (350.0 - 560.0))
+    assert sim.agent.torque == pytest.approx(expected_torque)
+
+
+def test_speed_under_full_force_matches_measurements():
+    env = bbs.BringBackShapesEnv()
+    env.reset(options={"layout": layout(agent=(150.0, 350.0), objects=[square(200, 150)])})
+    speeds = []
+    for _ in range(4):
+        env.step(RIGHT)
+        speeds.append(env.true_state()["agent_velocity"][0])
+    assert speeds == pytest.approx([37, 74, 110, 144], abs=1.5)
+
+
+def test_soft_velocity_cap_applies_to_fast_objects_only():
+    sim = simulation(layout(agent=(150.0, 150.0), objects=[square(200, 300), square(200, 450)]))
+    fast, slow = sim.object_bodies
+    fast.velocity, slow.velocity = (900.0, 0.0), (800.0, 0.0)
+    sim.advance()
+    assert fast.velocity.x == pytest.approx(900.0 * DAMPING_PER_STEP * 0.99, rel=1e-12)
+    assert slow.velocity.x == pytest.approx(800.0 * DAMPING_PER_STEP, rel=1e-12)
+    fast.velocity = (700.0, 0.0)  # the cap is removed again once an object is slow
+    sim.advance()
+    assert fast.velocity.x == pytest.approx(700.0 * DAMPING_PER_STEP, rel=1e-12)
+
+
+@pytest.mark.parametrize("goal_y", [None, 130.0, 345.0])
+def test_scoring_pushes_reward_and_terminates(goal_y):
+    env = bbs.BringBackShapesEnv(time_limit=400)
+    opening = arena_geometry(1.0, goal_y)
+    mid = opening.goal_y + opening.goal_height / 2
+    scene = layout(agent=(500.0, mid), objects=[square(535, mid - 25)], goal_y=goal_y)
+    env.reset(seed=0, options={"layout": scene})
+    rewards, terminated, truncated = [], False, False
+    while not (terminated or truncated):
+        _, reward, terminated, truncated, info = env.step(RIGHT)
+        rewards.append(reward)
+    assert terminated and not truncated
+    assert rewards[-1] == 1.0 and sum(rewards) == 1.0
+    state = env.true_state()
+    assert state["object_scored"].tolist() == [True]
+    assert state["object_poses"][0, 0] >= opening.goal_x + 5
+    assert info["scored"] == 1 and info["discovery"]["scored"] == 1
+
+
+def test_agent_cannot_pass_the_goal_line():
+    env = bbs.BringBackShapesEnv(time_limit=None)
+    env.reset(options={"layout": layout(agent=(400.0, 350.0), objects=[square(200, 150)])})
+    true_x = []
+    for _ in range(120):
+        env.step(RIGHT)
+        assert env.scene.agent.x <= 560.0  # drawn (post-clamp) position
+        true_x.append(env.true_state()["agent_pose"][0])
+    assert max(true_x) < 563.0 and max(true_x) > 555.0
+
+
+def test_spawn_past_the_goal_line_is_clamped_at_reset():
+    env = bbs.BringBackShapesEnv()
+    env.reset(options={"layout": layout(agent=(640.0, 200.0), objects=[square(200, 150)],
+                                        distractors=[(650.0, 500.0)])})
+    state = env.true_state()
+    assert state["agent_pose"][0] == 560.0 and state["distractor_poses"][0, 0] == 563.0
+
+
+def test_nothing_escapes_under_long_random_play_with_distractors():
+    for seed, scale in [(0, 1.0), (1, 1.4)]:
+        env = bbs.BringBackShapesEnv(num_distractors=4, arena_scale=scale, time_limit=None)
+        env.reset(seed=seed)
+        width, length = env.geometry.width, env.geometry.length
+        rng = np.random.default_rng(seed)
+        for _ in range(900):
+            env.step(rng.uniform(-1, 1, 2))
+            s = env.true_state()
+            alive = s["object_poses"][~s["object_scored"]]
+            assert np.all((alive[:, 0] > 50) & (alive[:, 0] < width - 50))
+            assert np.all((alive[:, 1] > 50) & (alive[:, 1] < length - 50))
+            for poses in (s["agent_pose"][None], s["distractor_poses"]):
+                assert np.all((poses[:, 0] > 110) & (poses[:, 0] < env.geometry.goal_x))
+                assert np.all((poses[:, 1] > 110) & (poses[:, 1] < length - 110))
+
+
+def test_distractors_move_and_push():
+    env = bbs.BringBackShapesEnv(num_distractors=2)
+    env.reset(seed=3)
+    start = env.true_state()["distractor_poses"].copy()
+    for _ in range(30):
+        env.step(np.zeros(2, np.float32) - [0, 1])  # agent idle (force 0)
+    moved = np.linalg.norm(env.true_state()["distractor_poses"][:, :2] - start[:, :2], axis=1)
+    assert np.all(moved > 5.0)
+
+
+# ------------------------------------------------------------------------------------ API
+def test_reset_observation_shows_the_new_episode():
+    env, fresh = (bbs.BringBackShapesEnv(num_distractors=2) for _ in range(2))
+    env.reset(seed=0)
+    for _ in range(20):
+        last, *_ = env.step(RIGHT)
+    first, _ = env.reset(seed=5)
+    assert not np.array_equal(first, last)
+    assert np.array_equal(first, fresh.reset(seed=5)[0])
+
+
+DETERMINISM_SCRIPT = """
+import hashlib, numpy as np, bbs
+env = bbs.make("bbs_basic_d2")
+obs, _ = env.reset(seed=123)
+h = hashlib.sha256(obs.tobytes())
+actions = np.random.default_rng(7).uniform(-1, 1, (60, 2)).astype(np.float32)
+for a in actions:
+    obs, r, *_ = env.step(a)
+    h.update(obs.tobytes()); h.update(np.float64(r).tobytes())
+h.update(env.true_state()["agent_pose"].tobytes())
+print(h.hexdigest())
+"""
+
+
+def test_bit_identical_across_processes():
+    outputs = {
+        subprocess.run([sys.executable, "-c", DETERMINISM_SCRIPT], capture_output=True, text=True,
+                       check=True, cwd=REPO_ROOT, env={"PYTHONHASHSEED": seed}).stdout.strip()
+        for seed in ("1", "2")
+    }
+    local = {}
+    exec(DETERMINISM_SCRIPT.replace("print(h.hexdigest())", "out = h.hexdigest()"), local)
+    assert len(outputs) == 1 and outputs == {local["out"]}
+
+
+def test_layout_reproduces_the_episode():
+    env = bbs.BringBackShapesEnv()
+    first, _ = env.reset(seed=11)
+    saved = env.layout.to_dict()
+    actions = np.random.default_rng(2).uniform(-1, 1, (40, 2))
+    run = [env.step(a)[0] for a in actions]
+    replay = bbs.BringBackShapesEnv()
+    again, _ = replay.reset(seed=99, options={"layout": saved})
+    assert np.array_equal(first, again)
+    assert digest(run) == digest(replay.step(a)[0] for a in actions)
+    placed = replay.true_state()
+    assert placed["object_shapes"] == tuple(o["shape"] for o in saved["objects"])
+
+
+def test_layout_places_entities_exactly():
+    scene = layout(agent=(300.0, 400.0), agent_angle=0.5,
+                   objects=[square(200, 200, "blue", "hexagon", 1.0)], distractors=[(450.0, 250.0)])
+    env = bbs.BringBackShapesEnv()
+    env.reset(options={"layout": scene})
+    s = env.true_state()
+    assert s["agent_pose"].tolist() == [300.0, 400.0, 0.5]
+    assert s["object_poses"].tolist() == [[200.0, 200.0, 1.0]]
+    assert (s["object_shapes"], s["object_colours"]) == (("hexagon",), ("blue",))
+    assert s["distractor_poses"].tolist() == [[450.0, 250.0, 0.0]]
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"objects": [square(200, 200, shape="circle")]}, "'circle'"),
+    ({"objects": [square(200, 200, colour="pink")]}, "'pink'"),
+    ({"objects": []}, "at least one object"),
+    ({"goal_y": 500.0, "objects": [square(200, 200)]}, "goal_y=500.0"),
+    ({"objects": [{"position": (math.nan, 1.0), "shape": "square", "colour": "red"}]}, "finite"),
+])
+def test_bad_layout_is_rejected(bad, message):
+    env = bbs.BringBackShapesEnv()
+    with pytest.raises(ValueError, match=message):
+        env.reset(options={"layout": layout() | bad})
+
+
+def test_variants_registry_and_task_names():
+    assert len(bbs.VARIANTS) == 16
+    assert bbs.variant_kwargs("bbs_medium_d4") == {"arena_scale": 1.4, "num_distractors": 4}
+    assert bbs.variant_kwargs("bbs_basic") == {"arena_scale": 1.0, "num_distractors": 0}
+    with pytest.raises(ValueError, match="bbs_large_d4"):
+        bbs.variant_kwargs("bbs_huge")
+    for name, gym_id in bbs.VARIANT_IDS.items():
+        assert gymnasium.spec(gym_id).kwargs == bbs.VARIANTS[name]
+    env = gymnasium.make("BringBackShapes-Large-D1-v0")
+    assert (env.unwrapped.arena_scale, env.unwrapped.num_distractors) == (1.6, 1)
+    assert env.reset(seed=0)[0].shape == (64, 64, 3)
+    custom = gymnasium.make("BringBackShapes-v0", num_objects=2, obs_size=32)
+    assert custom.reset(seed=0)[0].shape == (32, 32, 3)
+    assert len(custom.unwrapped.true_state()["object_poses"]) == 2
+
+
+# ------------------------------------------------------------------------------------ options
+def _counts(env, seeds):
+    out = []
+    for seed in seeds:
+        env.reset(seed=seed)
+        s = env.true_state()
+        out.append((len(s["object_poses"]), len(s["distractor_poses"]), s["goal_y"]))
+    return out
+
+
+def test_variable_counts_and_goal_position():
+    fixed = _counts(bbs.BringBackShapesEnv(num_objects=3, num_distractors=2), range(5))
+    assert set(fixed) == {(3, 2, 237.5)}
+    env = bbs.BringBackShapesEnv(num_distractors=4, variable_num_objects=True,
+                                 variable_num_distractors=True, variable_goal_position=True)
+    varied = _counts(env, range(40))
+    objects, distractors, goals = zip(*varied, strict=True)
+    assert set(objects) == set(range(1, 6)) and set(distractors) == {0, 1, 2, 3, 4}
+    low, high = env.geometry.goal_y_range
+    assert len(set(goals)) == 40 and all(low <= g <= high for g in goals)
+    env.reset(seed=0)  # the wall blocks move with the opening
+    g = env.geometry
+    assert g.walls[4].y1 == g.goal_y and g.walls[5].y0 == g.goal_y + g.goal_height
+
+
+def test_view_size_obs_size_canvas_and_repeat_options():
+    scene = {"layout": layout(agent=(350.0, 350.0), objects=[square(200, 200)])}
+    agent_colour = np.array(VIEW_PALETTE.agent)
+
+    def agent_pixels(**kwargs):
+        obs, _ = bbs.BringBackShapesEnv(**kwargs).reset(options=scene)
+        return int(np.all(obs == agent_colour, axis=-1).sum()), obs
+
+    default, obs = agent_pixels()
+    zoomed, _ = agent_pixels(agent_view_size=60)
+    small, small_obs = agent_pixels(obs_size=32)
+    assert zoomed > 3 * default and small < default / 2 and small_obs.shape == (32, 32, 3)
+    smooth, smooth_obs = agent_pixels(canvas_size=256)
+    assert smooth_obs.shape == (64, 64, 3) and np.abs(smooth_obs.astype(int) - obs).mean() < 3
+    env = bbs.BringBackShapesEnv(action_repeat=2)
+    env.reset(seed=0)
+    assert env.step(RIGHT)[4]["sub_steps"] == 2
+
+
+def test_raw_actions_match_normalised_ones():
+    scene = {"layout": layout(objects=[square(200, 200)])}
+    normalised, raw = bbs.BringBackShapesEnv(), bbs.BringBackShapesEnv(normalize_actions=False)
+    assert raw.action_space.high.tolist() == pytest.approx([2 * math.pi, 400.0])
+    normalised.reset(options=scene)
+    raw.reset(options=scene)
+    for a in np.random.default_rng(0).uniform(-1, 1, (10, 2)):
+        expected, *_ = normalised.step(a)
+        got, *_ = raw.step(((a[0] + 1) * math.pi, (a[1] + 1) * 200))
+        assert np.array_equal(got, expected)
+
+
+def test_out_of_range_actions_are_clipped_and_bad_actions_raise():
+    clipped, exact = bbs.BringBackShapesEnv(), bbs.BringBackShapesEnv()
+    clipped.reset(seed=4)
+    exact.reset(seed=4)
+    assert np.array_equal(clipped.step([-7.0, 3.0])[0], exact.step([-1.0, 1.0])[0])
+    for bad, message in [([math.nan, 0.0], "finite"), ([0.0, math.inf], "finite"),
+                         ([0.0, 0.0, 0.0], r"shape \(2,\)"), (0.5, r"shape \(2,\)")]:
+        with pytest.raises(ValueError, match=message):
+            exact.step(bad)
+
+
+def test_step_before_reset_and_after_the_end_raise():
+    env = bbs.BringBackShapesEnv(time_limit=0)
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(RIGHT)
+    env.reset(seed=0)
+    assert env.step(RIGHT)[3]  # time_limit 0: the first agent step runs 2 sub-steps and ends
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(RIGHT)
+
+
+def test_state_in_info_option():
+    env = bbs.BringBackShapesEnv(include_state_in_info=True, num_distractors=1)
+    _, info = env.reset(seed=0)
+    assert set(info["state"]) >= {"agent_pose", "object_poses", "distractor_velocities"}
+    assert "state" not in bbs.BringBackShapesEnv().reset(seed=0)[1]
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"arena_scale": 0}, "arena_scale must be a finite number > 0; got 0"),
+    ({"arena_scale": -1.0}, "got -1.0"),
+    ({"arena_scale": math.inf}, "got inf"),
+    ({"num_objects": 0}, "num_objects must be an integer >= 1; got 0"),
+    ({"num_objects": 2.5}, "num_objects.*got 2.5"),
+    ({"num_distractors": -1}, "num_distractors must be an integer >= 0; got -1"),
+    ({"agent_view_size": 400}, "agent_view_size=400"),
+    ({"agent_view_size": 0}, "agent_view_size must be an integer >= 1; got 0"),
+    ({"action_repeat": 0}, "action_repeat.*got 0"),
+    ({"time_limit": -5}, "time_limit.*got -5"),
+    ({"obs_size": 0}, "obs_size.*got 0"),
+    ({"canvas_size": 32}, "canvas_size must be an integer >= 64; got 32"),
+    ({"render_mode": "video"}, "'video'"),
+])
+def test_bad_options_are_rejected_with_the_value(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        bbs.BringBackShapesEnv(**kwargs)
+
+
+def test_unknown_reset_option_is_rejected():
+    with pytest.raises(ValueError, match="'layuot'"):
+        bbs.BringBackShapesEnv().reset(options={"layuot": {}})
+
+
+# ------------------------------------------------------------------------------------ metrics
+def test_discovery_tracker_on_a_hand_made_episode():
+    tracker = DiscoveryTracker(4)
+    tracker.observe(0, [2])
+    tracker.observe(3, [0, 2])
+    tracker.observe(7, [0, 1])
+    summary = tracker.summary(episode_length=10, scored=np.array([True, False, False, True]))
+    assert summary["first_visit"] == (3, 7, 0, -1)
+    assert summary["mean_first_visit"] == pytest.approx(10 / 3)
+    assert summary["never_visited"] == 25.0
+    assert summary["visited_not_scored"] == pytest.approx(200 / 3)  # objects 1 and 2 of 0, 1, 2
+    assert summary["scored"] == 2 and summary["episode_length"] == 10
+    empty = DiscoveryTracker(2).summary(5, np.zeros(2, bool))
+    assert empty["never_visited"] == 100.0 and math.isnan(empty["visited_not_scored"])
+
+
+def test_discovery_in_an_episode_uses_complete_visibility():
+    # Object 0 fully in view at reset; object 1 straddles the view edge; object 2 is far away.
+    scene = layout(agent=(300.0, 350.0), objects=[square(320, 300), square(410, 300),
+                                                  square(140, 520)])
+    env = bbs.BringBackShapesEnv(time_limit=6)
+    env.reset(options={"layout": scene})
+    done = False
+    while not done:
+        *_, terminated, truncated, info = env.step(np.zeros(2) - [0, 1])
+        done = terminated or truncated
+    d = info["discovery"]
+    assert d["first_visit"] == (0, -1, -1) and d["episode_length"] == 2
+    assert d["never_visited"] == pytest.approx(200 / 3) and d["visited_not_scored"] == 100.0
+
+
+# ------------------------------------------------------------------------------------ pixels
+KNOWN_SCENE = layout(
+    agent=(520.0, 350.0),
+    objects=[square(400, 230 + 50 * i, colour) for i, colour in enumerate(SQUARE_COLOURS)],
+    distractors=[(500.0, 420.0)],
+)
+
+
+def _pixel(env, x, y):
+    """Observation pixel (row, col) whose centre is nearest to world point (x, y)."""
+    box_x0, box_y0, scale = 520 - 125, 350 - 125, env.observation_space.shape[0] / 250
+    return round((y - box_y0 + 0.5) * scale - 0.5), round((x - box_x0 + 0.5) * scale - 0.5)
+
+
+def test_observation_colours_for_a_known_layout():
+    env = bbs.BringBackShapesEnv(render_mode="rgb_array")
+    obs, _ = env.reset(options={"layout": KNOWN_SCENE})
+    expected = {
+        (470.0, 300.0): (50, 50, 50),  # floor
+        (610.0, 230.0): (141, 151, 151),  # goal block (wall)
+        (610.0, 350.0): (50, 129, 90),  # goal
+        (520.0, 342.0): (93, 129, 160),  # agent, above its orientation line
+        (500.0, 420.0): (165, 137, 137),  # distractor
+    }
+    expected |= {(425.0, 255.0 + 50 * i): view_colour(c) for i, c in
+                 enumerate(bbs.geometry.OBJECT_COLOURS.values())}
+    for (x, y), colour in expected.items():
+        assert tuple(obs[_pixel(env, x, y)]) == colour, (x, y)
+    assert [view_colour(bbs.geometry.OBJECT_COLOURS[c]) for c in SQUARE_COLOURS] == [
+        (205, 151, 50), (50, 50, 205), (50, 205, 50), (205, 50, 50), (148, 70, 196)]
+    spec_table = [(50, 50, 50), (141, 151, 151), (50, 129, 90), (93, 129, 160), (77, 88, 99),
+                  (165, 137, 137)]
+    p = VIEW_PALETTE
+    assert [p.background, p.wall, p.goal, p.agent, p.agent_line, p.distractor] == spec_table
+    arena = env.render()
+    assert arena.shape == (700, 800, 3)
+    screen = {(200, 550): (0, 0, 0), (300, 300): (0, 0, 0), (50, 50): (149, 165, 166),
+              (660, 350): (0, 130, 65), (425, 255): (205, 151, 50), (470, 300): (50, 50, 50)}
+    for (x, y), colour in screen.items():
+        assert tuple(arena[y, x]) == colour, (x, y)
+
+
+# ------------------------------------------------------------------------------------ vector
+def test_vector_envs_sync_and_async():
+    def make():
+        return bbs.make("bbs_basic_d1", time_limit=14)
+
+    single = [make() for _ in range(2)]
+    expected = [env.reset(seed=s)[0] for env, s in zip(single, (5, 6), strict=True)]
+    actions = np.random.default_rng(0).uniform(-1, 1, (5, 2, 2)).astype(np.float32)
+    for vector_cls in (gymnasium.vector.SyncVectorEnv, gymnasium.vector.AsyncVectorEnv):
+        envs = vector_cls([make, make])
+        obs, _ = envs.reset(seed=[5, 6])
+        assert np.array_equal(obs, np.stack(expected))
+        ends = []
+        for a in actions:
+            obs, reward, terminated, truncated, info = envs.step(a)
+            if truncated.any():
+                ends.append((truncated.tolist(), info["discovery"]["episode_length"].tolist()))
+        assert ends == [([True, True], [4, 4])]
+        envs.close()
+
+
+# ------------------------------------------------------------------------------------ extras
+def test_chipmunk_fast_path_agrees_with_the_public_api():
+    from bbs import _chipmunk
+
+    sim = simulation(layout(agent=(300.0, 350.0), agent_angle=0.25, objects=[square(200, 200)]))
+    body = sim.agent
+    body.velocity = (12.0, -3.0)
+    assert _chipmunk.position(body) == tuple(body.position)
+    assert _chipmunk.velocity(body) == tuple(body.velocity)
+    assert _chipmunk.angle(body) == body.angle
+    _chipmunk.set_force_and_torque(body, 1.0, 2.0, 3.0)
+    assert (tuple(body.force), body.torque) == ((1.0, 2.0), 3.0)
+    twin = simulation(layout(agent=(300.0, 350.0), agent_angle=0.25, objects=[square(200, 200)]))
+    twin.agent.velocity, twin.agent.force, twin.agent.torque = (12.0, -3.0), (1.0, 2.0), 3.0
+    _chipmunk.step(sim.space, DT)
+    twin.space.step(DT)
+    assert tuple(body.position) == tuple(twin.agent.position) and body.angle == twin.agent.angle
+
+
+def test_keyboard_mapping_of_play():
+    from bbs.play import action_from_keys
+
+    assert action_from_keys(False, False, False, False) == (0.0, 0.0)
+    assert action_from_keys(True, False, False, False) == (0.0, 400.0)
+    assert action_from_keys(False, False, False, True) == (pytest.approx(1.5 * math.pi), 400.0)
+    assert action_from_keys(False, True, True, False) == (pytest.approx(0.75 * math.pi), 400.0)
+
+
+def test_human_render_without_pygame_explains_the_extra():
+    import importlib.util
+
+    if importlib.util.find_spec("pygame") is not None:
+        pytest.skip("pygame is installed")
+    env = bbs.BringBackShapesEnv(render_mode="human")
+    with pytest.raises(ImportError, match=r"vsgjax\[play\]"):
+        env.reset(seed=0)

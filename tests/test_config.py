@@ -1,0 +1,145 @@
+"""Config presets (spec section 5) and error messages for bad names, keys and types."""
+
+import dataclasses
+
+import pytest
+
+from vsgjax.config import (
+    MODELS,
+    SIZES,
+    ConfigError,
+    apply_overrides,
+    from_dict,
+    make_config,
+    to_dict,
+)
+
+
+@pytest.mark.parametrize(
+    "call, named, listed",
+    [
+        (lambda: make_config(model="vsgg"), "'vsgg'", MODELS),
+        (lambda: make_config(size="huge"), "'huge'", SIZES),
+        (lambda: make_config(overrides=["wm.kl_scael=0.3"]), "'wm.kl_scael'", ("kl_scale",)),
+        (lambda: make_config(overrides=["optim.lr=0.3"]), "'optim.lr'", ("model", "wm", "ac")),
+        (lambda: make_config(overrides=["wm.kl_scale=abc"]), "'abc'", ("float",)),
+        (lambda: make_config(overrides=["model.deter=1.5"]), "'1.5'", ("int",)),
+        (lambda: make_config(overrides=["wm.kl_masked=maybe"]), "'maybe'", ("bool",)),
+        (lambda: make_config(task="mujoco_cheetah"), "'mujoco_cheetah'", ("bbs_", "dmc_", "atari_")),
+    ],
+)
+def test_errors_name_the_bad_value_and_list_valid_ones(call, named, listed):
+    with pytest.raises(ConfigError) as info:
+        call()
+    message = str(info.value)
+    assert named in message
+    for valid in listed:
+        assert valid in message
+
+
+def test_missing_equals_sign_is_an_error():
+    with pytest.raises(ConfigError, match="section.key=value"):
+        make_config(overrides=["wm.kl_scale"])
+
+
+def test_overrides_are_typed():
+    config = make_config(overrides=["wm.kl_scale=0.3", "model.deter=512", "wm.kl_masked=true",
+                                    "train.steps=1e6", "model.gate_mode=threshold"])
+    assert config.wm.kl_scale == 0.3
+    assert config.model.deter == 512
+    assert config.wm.kl_masked is True
+    assert config.train.steps == 1_000_000 and isinstance(config.train.steps, int)
+    assert config.model.gate_mode == "threshold"
+
+
+def test_overrides_apply_on_top_of_presets():
+    base = make_config("dmc_walker_walk", "vsg", "paper")
+    changed = apply_overrides(base, ["wm.gate_kappa=0.5"])
+    assert changed.wm.gate_kappa == 0.5
+    assert dataclasses.replace(changed, wm=base.wm) == base
+
+
+BBS_PAPER = {
+    "env.action_repeat": 4, "env.time_limit": 3000, "train.batch": 16, "train.length": 50,
+    "model.deter": 1024, "model.hidden": 1024, "model.stoch": 32, "model.classes": 32,
+    "wm.cnn_depth": 48, "wm.mlp_layers": 4, "wm.mlp_units": 400,
+    "wm.kl_scale": 1.0, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
+    "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.3, "wm.gate_free": 0.1,
+    "wm.lr": 1e-4, "ac.actor_lr": 8e-5, "ac.critic_lr": 2e-4,
+    "wm.discount_head": True, "wm.discount_scale": 1.0, "wm.reward_scale": 1.0,
+    "ac.gamma": 0.99, "ac.lam": 0.95, "ac.horizon": 15, "ac.entropy": 2e-3,
+    "wm.eps": 1e-5, "wm.clip": 100.0, "wm.weight_decay": 1e-6,
+    "train.train_every": 5, "train.prefill": 10_000, "ac.slow_critic_every": 100,
+    "train.steps": 2_500_000,
+}
+DMC_PAPER = {
+    "env.action_repeat": 2, "env.time_limit": 1000, "train.batch": 50, "train.length": 50,
+    "model.deter": 1024, "model.hidden": 1024, "wm.cnn_depth": 32,
+    "wm.reward_layers": 2, "ac.critic_layers": 3, "ac.actor_layers": 4, "wm.mlp_units": 400,
+    "wm.kl_scale": 1.0, "wm.kl_balance": 0.8, "wm.kl_free": 1.0,
+    "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.4, "wm.gate_free": 0.1,
+    "wm.lr": 3e-4, "ac.actor_lr": 8e-5, "ac.critic_lr": 8e-5,
+    "wm.discount_head": False, "wm.reward_scale": 2.0, "ac.gamma": 0.99, "ac.entropy": 1e-4,
+    "wm.weight_decay": 0.0, "train.train_every": 5, "train.prefill": 2500,
+    "train.steps": 1_000_000,
+}
+ATARI_PAPER = {
+    "env.action_repeat": 4, "env.time_limit": 108_000, "env.grayscale": True, "env.sticky": 0.25,
+    "train.batch": 16, "train.length": 50, "model.deter": 600, "model.hidden": 600,
+    "model.stoch": 32, "model.classes": 32, "wm.cnn_depth": 48, "wm.mlp_layers": 4,
+    "wm.mlp_units": 400, "wm.kl_scale": 0.1, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
+    "wm.gate_kappa": 0.4, "wm.lr": 2e-4, "ac.actor_lr": 4e-5, "ac.critic_lr": 1e-4,
+    "wm.discount_head": True, "wm.discount_scale": 5.0, "wm.reward_tanh": True,
+    "ac.gamma": 0.999, "ac.entropy": 1e-3, "ac.actor_grad": "reinforce",
+    "train.train_every": 16, "train.prefill": 50_000, "train.steps": 50_000_000,
+}
+
+
+def _get(config, key):
+    section, name = key.split(".")
+    return getattr(getattr(config, section), name)
+
+
+@pytest.mark.parametrize("task, table", [("bbs_basic", BBS_PAPER), ("dmc_walker_walk", DMC_PAPER),
+                                         ("atari_pong", ATARI_PAPER)])
+def test_paper_presets_match_the_spec_table(task, table):
+    config = make_config(task, "vsg", "paper")
+    wrong = {key: (_get(config, key), want) for key, want in table.items()
+             if _get(config, key) != want}
+    assert not wrong
+
+
+def test_svsg_presets():
+    bbs = make_config("bbs_basic", "svsg", "paper")
+    assert (bbs.model.deter, bbs.model.stoch, bbs.model.classes) == (0, 1024, 0)
+    assert bbs.wm.kl_masked and bbs.wm.kl_free == 1.0 and not bbs.model.cell_norm
+    assert make_config("dmc_walker_walk", "svsg", "paper").wm.kl_free == 1.0
+
+
+def test_baselines_use_layernorm_gru_and_vsg_does_not():
+    assert make_config(model="dreamerv2").model.cell_norm
+    assert make_config(model="dreamerv1").model.cell_norm
+    assert not make_config(model="vsg").model.cell_norm
+    assert make_config(model="dreamerv1").model.classes == 0
+
+
+@pytest.mark.parametrize("model", MODELS)
+@pytest.mark.parametrize("size", SIZES)
+def test_every_preset_resolves_and_round_trips(model, size):
+    config = make_config("bbs_basic", model, size)
+    assert config.model.name == model and config.size == size
+    assert from_dict(to_dict(config)) == config
+    hash(config)
+
+
+def test_sizes_shrink_the_networks():
+    paper, small, debug = (make_config("bbs_basic", "vsg", s) for s in ("paper", "small", "debug"))
+    assert paper.model.deter > small.model.deter > debug.model.deter
+    assert paper.wm.cnn_depth > small.wm.cnn_depth > debug.wm.cnn_depth
+
+
+def test_from_dict_rejects_unknown_keys():
+    data = to_dict(make_config())
+    data["wm"]["bogus"] = 1
+    with pytest.raises(ConfigError, match="bogus"):
+        from_dict(data)

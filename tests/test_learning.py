@@ -1,0 +1,159 @@
+"""Learning test: VSG must solve a tiny pixel reach task clearly better than a random policy.
+
+The task (built here, for this test): a 64x64 RGB image shows a red dot (the agent, starting at
+the centre) and a green dot (the target, placed uniformly at random at every reset). A 2-D
+action in [-1, 1]^2 moves the agent by ``SPEED`` per step; the reward is the negative distance
+to the target, every step, for ``EPISODE`` steps. The target is only visible in the image, so
+the policy must read the pixels. Scores over ``EVAL_EPISODES`` evaluation episodes are compared
+with a uniform random policy and with an oracle that moves straight to the target: the agent
+must close at least half of the gap between them.
+
+Setting ``VSGJAX_BREAK_ACTOR_GRAD=1`` runs the same test with the actor's loss wrapped in
+``stop_gradient`` (the actor never learns); the test must then FAIL, which shows that it
+measures learning (see the closing note of issue 4).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+
+import gymnasium
+import jax
+import numpy as np
+import pytest
+
+from vsgjax import behaviour
+from vsgjax.collect import EnvBatch
+from vsgjax.config import make_config
+from vsgjax.envs.wrappers import DefaultSeed
+from vsgjax.train import Trainer
+
+SIZE = 64
+DOT = 6  # dot side in pixels
+SPEED = 0.12  # agent displacement per unit action, in arena units ([0, 1]^2)
+EPISODE = 20  # agent steps per episode
+EVAL_EPISODES = 10
+SEED = 0
+BREAK_ACTOR_GRAD = os.environ.get("VSGJAX_BREAK_ACTOR_GRAD") == "1"
+
+# Small VSG: debug-sized pieces grown enough to see two dots; about 1,400 updates.
+OVERRIDES = [
+    "env.action_repeat=1", "env.time_limit=20",
+    "model.deter=64", "model.hidden=64", "model.stoch=8", "model.classes=8",
+    "wm.cnn_depth=8", "wm.mlp_layers=2", "wm.mlp_units=64", "wm.reward_layers=2",
+    "ac.actor_layers=2", "ac.critic_layers=2", "ac.horizon=10",
+    "train.batch=16", "train.length=16", "train.train_every=2", "train.prefill=500",
+    "train.steps=3300", "train.eval_every=1100", f"train.eval_episodes={EVAL_EPISODES}",
+    "train.log_every=500", "train.ckpt_every=100000", "train.video_every=100000",
+]
+
+
+class ReachEnv(gymnasium.Env):
+    """Move the red dot to the green dot; reward −distance per step (see module docstring)."""
+
+    def __init__(self):
+        self.observation_space = gymnasium.spaces.Box(0, 255, (SIZE, SIZE, 3), np.uint8)
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.agent = np.full(2, 0.5)
+        self.target = np.full(2, 0.5)
+        self.t = 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.agent = np.full(2, 0.5)
+        self.target = self.np_random.uniform(0.1, 0.9, 2)
+        self.t = 0
+        return self._image(), {}
+
+    def step(self, action):
+        self.agent = np.clip(self.agent + SPEED * np.clip(action, -1, 1), 0.0, 1.0)
+        self.t += 1
+        reward = -float(np.linalg.norm(self.agent - self.target))
+        return self._image(), reward, False, self.t >= EPISODE, {}
+
+    def _image(self) -> np.ndarray:
+        image = np.zeros((SIZE, SIZE, 3), np.uint8)
+        for position, channel in ((self.target, 1), (self.agent, 0)):
+            x, y = np.round(position * (SIZE - DOT)).astype(int)
+            image[y:y + DOT, x:x + DOT, channel] = 255
+        return image
+
+
+def make_reach_env(seed: int) -> gymnasium.Env:
+    """A reach env whose first reset uses ``seed`` (later resets continue its generator)."""
+    return DefaultSeed(ReachEnv(), seed)
+
+
+def reach_envs(env_cfg, seed: int, num_envs: int, *, eval: bool = False) -> EnvBatch:
+    """The Trainer's env factory for this task (eval envs on seeds disjoint from training)."""
+    base = seed + 1000 if eval else seed
+    return EnvBatch([functools.partial(make_reach_env, base + i) for i in range(num_envs)],
+                    workers=False)
+
+
+def baseline_return(policy, episodes: int, seed: int) -> float:
+    """Mean return of ``policy(env, rng) -> action`` on fresh reach episodes."""
+    rng, env, returns = np.random.default_rng(seed), ReachEnv(), []
+    for episode in range(episodes):
+        env.reset(seed=seed + episode)
+        total, done = 0.0, False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(policy(env, rng))
+            total, done = total + reward, terminated or truncated
+        returns.append(total)
+    return float(np.mean(returns))
+
+
+def random_action(env: ReachEnv, rng: np.random.Generator) -> np.ndarray:
+    return rng.uniform(-1, 1, 2)
+
+
+def oracle_action(env: ReachEnv, rng: np.random.Generator) -> np.ndarray:
+    return np.clip((env.target - env.agent) / SPEED, -1, 1)
+
+
+def test_oracle_beats_random_by_a_wide_margin():
+    random_score = baseline_return(random_action, 200, SEED)
+    oracle_score = baseline_return(oracle_action, 200, SEED)
+    assert oracle_score > random_score + 3.0, (oracle_score, random_score)
+
+
+def test_reach_images_show_both_dots():
+    env = ReachEnv()
+    image, _ = env.reset(seed=3)
+    assert image[..., 0].sum() == 255 * DOT * DOT and image[..., 1].sum() == 255 * DOT * DOT
+    image, *_ = env.step(np.array([1.0, 0.0], np.float32))
+    x = np.flatnonzero(image[..., 0].any(0))[0]
+    assert x == round((0.5 + SPEED) * (SIZE - DOT))
+
+
+def stop_actor_gradient(monkeypatch):
+    """The broken variant: the actor loss's gradient is zero, so the actor never learns."""
+    original = behaviour.actor_loss
+
+    def broken(actor_params, *args):
+        loss, aux = original(actor_params, *args)
+        return jax.lax.stop_gradient(loss), aux
+
+    monkeypatch.setattr(behaviour, "actor_loss", broken)
+
+
+@pytest.mark.slow
+def test_vsg_learns_to_reach(tmp_path, monkeypatch):
+    if BREAK_ACTOR_GRAD:
+        stop_actor_gradient(monkeypatch)
+    config = make_config("dmc_reach", "vsg", "debug", OVERRIDES)
+    trainer = Trainer(config, tmp_path, make_envs=reach_envs, progress=False)
+    try:
+        assert trainer.run() == 0
+    finally:
+        trainer.close()
+    scores = json.loads((tmp_path / "scores.jsonl").read_text())
+    random_score = baseline_return(random_action, 200, SEED)
+    oracle_score = baseline_return(oracle_action, 200, SEED)
+    threshold = random_score + 0.5 * (oracle_score - random_score)
+    print(f"reach: eval returns {scores['ys']} at {scores['xs']}; random {random_score:.2f}, "
+          f"oracle {oracle_score:.2f}, threshold {threshold:.2f}")
+    assert scores["ys"][-1] > threshold, (scores, random_score, oracle_score)

@@ -1,0 +1,334 @@
+"""Imagination actor-critic (spec section 4): λ-returns, actor and critic losses, slow critic.
+
+Everything here is a pure function of explicit parameters and PRNG keys, written PER START STATE
+(unbatched) and vmapped by the caller over the B·T posterior start states. The world model enters
+only through three callables, so this module does not depend on how the world model is built:
+
+    rollout(policy, start, key) -> (feat [H+1, F], action [H+1, A])   # the dynamics' imagine()
+    reward(feat [..., F]) -> [...]       # mean of the reward head
+    discount(feat [..., F]) -> [...]     # γ̂ = γ·P(continue) with a discount head, else γ
+
+TIMESTEP ALIGNMENT (one imagined trajectory, horizon H, H+1 states; t indexes states)::
+
+    t               0        1        2      ...    H-1       H
+    state           s_0 ---> s_1 ---> s_2    ...    s_H-1 --> s_H       s_0 = sg(posterior)
+    action          a_0      a_1      a_2    ...    a_H-1    (a_H)      a_t = π(sg(feat_t)); a_H unused
+    reward head     (r_0)    r_1      r_2    ...    r_H-1     r_H       r_t: reward for ARRIVING at s_t
+    discount head   (γ̂_0)    γ̂_1      γ̂_2    ...    γ̂_H-1     γ̂_H       γ̂_t = γ·P(s_t is not terminal)
+    slow value      v_0      v_1      v_2    ...    v_H-1     v_H       v_H bootstraps the return
+    λ-return        V_0      V_1      V_2    ...    V_H-1     -         H returns, t = 0..H-1
+    weight          w_0=c    w_1      w_2    ...    w_H-1     -         w_t = c·Π_{k=1..t} γ̂_k
+
+    V_t = r_{t+1} + γ̂_{t+1}·((1−λ)·v_{t+1} + λ·V_{t+1}),  with V_H := v_H
+    i.e. lambda_returns(reward[1:], discount[1:], value[1:]) over t = 0..H-1 (r_0, γ̂_0 unused).
+    w = sg(c · cumprod([1, γ̂_1, ..., γ̂_{H-1}]))  (the spec's cumprod([1, γ̂_1..])), where
+    c = 1 − is_terminal of the start state from the replay batch (a terminal start state has no
+    decision to make, so it gets no weight: DreamerV2 uses the true first discount the same way).
+
+    critic:  v(sg(feat_t)) regresses sg(V_t) with weight w_t,               t = 0..H-1
+    actor:   π(·|sg(feat_t)) that produced a_t, objective at t:             t = 0..H-1
+             dynamics  → V_t (gradient flows through a_t, s_{t+1}, ..., into r, γ̂ and v)
+             reinforce → log π(sg(a_t)|feat_t) · sg(V_t − v_t)    (slow critic as the baseline)
+             plus η·entropy(π(·|feat_t)); loss = −mean_t(w_t · objective_t)
+
+This is the "reward belongs to the state it arrives at" convention of the replay batch (reward[t]
+is received on arriving at obs t), which DreamerV3 also uses. DreamerV2 instead pairs r_t and γ̂_t
+with V_t (so V_0 includes the reward of the start state, which no imagined action can change).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax.scipy.special import ndtr, ndtri
+
+from vsgjax.config import BehaviourConfig
+from vsgjax.networks import MLP, normal_log_prob
+
+sg = jax.lax.stop_gradient
+
+ACTOR_GRADS = ("auto", "dynamics", "reinforce", "both")
+TRUNC_CLIP = 1e-6  # samples are clipped to [-1 + clip, 1 - clip] so log_prob stays finite
+TAIL = 1e-7  # inverse-CDF levels are kept in [TAIL, 1 - TAIL] so the sample stays finite
+
+
+# --- action distributions -----------------------------------------------------------------------
+
+class TruncNormalActions(NamedTuple):
+    """Continuous actions in [-1, 1]^A: independent Normals truncated to [-1, 1] (DreamerV2).
+
+    ``mean = tanh(m)``, ``std = 2·σ(s/2) + min_std`` from the actor's raw outputs ``(m, s)``.
+    With α = (−1 − μ)/σ, β = (1 − μ)/σ and Z = Φ(β) − Φ(α)::
+
+        log p(x) = log φ((x − μ)/σ) − log σ − log Z                 (x in [-1, 1])
+        H        = log(√(2πe)·σ·Z) + (α·φ(α) − β·φ(β)) / (2Z)
+
+    Samples come from the inverse CDF and carry the implicit reparameterisation gradient
+    dx/dθ = −(∂F(x; θ)/∂θ) / p(x; θ) (F the CDF), as TFP's ``TruncatedNormal``; they are
+    clipped to [-1 + 1e-6, 1 − 1e-6] with a straight-through gradient. The mode is the mean.
+    Because |μ| ≤ 1 and σ ≤ 2 + min_std, Z ≥ Φ(2/σ_max) − 1/2 ≈ 0.33 (min_std 0.1): no tail
+    arithmetic is needed, which compiles to a far smaller graph than TFP's ``TruncatedNormal``
+    (several times faster to compile); tests check that the two agree.
+    """
+
+    mean: jax.Array
+    std: jax.Array
+
+    def _bounds(self) -> tuple[jax.Array, jax.Array, jax.Array]:
+        alpha, beta = (-1.0 - self.mean) / self.std, (1.0 - self.mean) / self.std
+        return alpha, beta, ndtr(beta) - ndtr(alpha)
+
+    def _cdf(self, action: jax.Array) -> jax.Array:
+        alpha, _, normalizer = self._bounds()
+        return (ndtr((action - self.mean) / self.std) - ndtr(alpha)) / normalizer
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        alpha, _, normalizer = self._bounds()
+        uniform = jax.random.uniform(key, self.mean.shape)
+        level = jnp.clip(ndtr(alpha) + uniform * normalizer, TAIL, 1.0 - TAIL)
+        event = sg(self.mean + self.std * ndtri(level))
+        cdf = self._cdf(event)  # forward: `event`; gradient: −(∂F/∂θ) / p
+        event = event - (cdf - sg(cdf)) / sg(jnp.exp(self._log_density(event)))
+        clipped = jnp.clip(event, -1.0 + TRUNC_CLIP, 1.0 - TRUNC_CLIP)
+        return event + sg(clipped - event)
+
+    def mode(self) -> jax.Array:
+        return self.mean
+
+    def _log_density(self, action: jax.Array) -> jax.Array:
+        """Per-dimension log density."""
+        normalizer = self._bounds()[2]
+        z = (action - self.mean) / self.std
+        return -0.5 * z * z - 0.5 * jnp.log(2.0 * jnp.pi) - jnp.log(self.std * normalizer)
+
+    def log_prob(self, action: jax.Array) -> jax.Array:
+        return self._log_density(action).sum(-1)
+
+    def entropy(self) -> jax.Array:
+        alpha, beta, normalizer = self._bounds()
+        pdf = lambda z: jnp.exp(-0.5 * z * z) / jnp.sqrt(2.0 * jnp.pi)
+        entropy = (0.5 * jnp.log(2.0 * jnp.pi * jnp.e) + jnp.log(self.std * normalizer)
+                   + (alpha * pdf(alpha) - beta * pdf(beta)) / (2.0 * normalizer))
+        return entropy.sum(-1)
+
+
+class OneHotActions(NamedTuple):
+    """Discrete actions as one-hot vectors; samples carry a straight-through gradient to the
+    probabilities (forward: the one-hot sample; backward: d sample / d probs = identity)."""
+
+    logits: jax.Array
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        probs = jax.nn.softmax(self.logits)
+        index = jax.random.categorical(key, self.logits)
+        one_hot = jax.nn.one_hot(index, self.logits.shape[-1], dtype=probs.dtype)
+        return one_hot + probs - sg(probs)
+
+    def mode(self) -> jax.Array:
+        return jax.nn.one_hot(jnp.argmax(self.logits, -1), self.logits.shape[-1])
+
+    def log_prob(self, action: jax.Array) -> jax.Array:
+        return jnp.sum(action * jax.nn.log_softmax(self.logits), -1)
+
+    def entropy(self) -> jax.Array:
+        log_probs = jax.nn.log_softmax(self.logits)
+        return -jnp.sum(jnp.exp(log_probs) * log_probs, -1)
+
+
+# --- networks -----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Behaviour:
+    """Actor and critic networks for one action space; hashable, so usable as a jit static arg.
+
+    ``units`` is the width of the hidden layers (the config's ``wm.mlp_units``: the paper uses
+    400 for every MLP).
+    """
+
+    cfg: BehaviourConfig
+    units: int
+    action_dim: int
+    discrete: bool
+
+    def __post_init__(self):
+        if self.cfg.actor_grad not in ACTOR_GRADS:
+            raise ValueError(f"unknown ac.actor_grad {self.cfg.actor_grad!r}; "
+                             f"valid: {', '.join(ACTOR_GRADS)}")
+        if not 0.0 <= self.cfg.actor_grad_mix <= 1.0:
+            raise ValueError(f"ac.actor_grad_mix must lie in [0, 1], got {self.cfg.actor_grad_mix}")
+        if self.action_dim < 1:
+            raise ValueError(f"action_dim must be positive, got {self.action_dim}")
+
+    @property
+    def dynamics_weight(self) -> float:
+        """Weight of the dynamics-backprop objective; the rest goes to REINFORCE.
+
+        'auto' is dynamics backprop for continuous and REINFORCE for discrete actions.
+        """
+        mode = self.cfg.actor_grad
+        if mode == "auto":
+            mode = "reinforce" if self.discrete else "dynamics"
+        return {"dynamics": 1.0, "reinforce": 0.0, "both": self.cfg.actor_grad_mix}[mode]
+
+    @property
+    def actor_net(self) -> MLP:
+        outputs = self.action_dim if self.discrete else 2 * self.action_dim
+        return MLP(self.cfg.actor_layers, self.units, (outputs,))
+
+    @property
+    def critic_net(self) -> MLP:
+        return MLP(self.cfg.critic_layers, self.units, ())
+
+    def init(self, key: jax.Array, feat_dim: int) -> dict:
+        """{"actor": params, "critic": params, "slow_critic": copy of the critic}."""
+        actor_key, critic_key = jax.random.split(key)
+        feat = jnp.zeros((feat_dim,), jnp.float32)
+        critic = self.critic_net.init(critic_key, feat)["params"]
+        return {"actor": self.actor_net.init(actor_key, feat)["params"], "critic": critic,
+                "slow_critic": jax.tree.map(jnp.copy, critic)}
+
+    def policy(self, actor_params, feat: jax.Array) -> TruncNormalActions | OneHotActions:
+        """The action distribution π(·|feat)."""
+        out = self.actor_net.apply({"params": actor_params}, feat)
+        if self.discrete:
+            return OneHotActions(out)
+        mean, std = jnp.split(out, 2, axis=-1)
+        return TruncNormalActions(jnp.tanh(mean), 2.0 * jax.nn.sigmoid(std / 2.0)
+                                  + self.cfg.actor_min_std)
+
+    def value(self, critic_params, feat: jax.Array) -> jax.Array:
+        """The critic's mean value (the mean of a Normal with σ = 1)."""
+        return self.critic_net.apply({"params": critic_params}, feat)
+
+
+# --- returns ------------------------------------------------------------------------------------
+
+def lambda_returns(reward: jax.Array, discount: jax.Array, value: jax.Array,
+                   lam: float) -> jax.Array:
+    """λ-returns over the time axis 0, aligned on the NEXT state (see the module diagram).
+
+    With ``reward[t] = r_{t+1}``, ``discount[t] = γ̂_{t+1}``, ``value[t] = v_{t+1}`` (t = 0..H-1)::
+
+        V_t = r_{t+1} + γ̂_{t+1}·((1 − λ)·v_{t+1} + λ·V_{t+1}),   V_H = v_H = value[-1]
+
+    λ = 1 gives the discounted Monte-Carlo return bootstrapped with v_H, λ = 0 the one-step
+    TD target. Extra trailing axes are batch axes.
+    """
+    def step(next_return, inputs):
+        r, d, v = inputs
+        ret = r + d * ((1.0 - lam) * v + lam * next_return)
+        return ret, ret
+
+    _, returns = jax.lax.scan(step, value[-1], (reward, discount, value), reverse=True)
+    return returns
+
+
+def return_weights(discount: jax.Array, start_continue: jax.Array) -> jax.Array:
+    """w_t = sg(c·Π_{k=1..t} γ̂_k) for t = 0..H-1 from the H+1 predicted discounts."""
+    ones = jnp.ones_like(discount[:1])
+    return sg(start_continue * jnp.cumprod(jnp.concatenate([ones, discount[1:-1]]), axis=0))
+
+
+def update_slow_critic(critic, slow_critic, step: jax.Array, every: int):
+    """Hard copy critic → slow critic when ``step`` (updates done before this one) is a multiple
+    of ``every`` (so after the 1st, (every+1)-th, ... update, as DreamerV2); else unchanged."""
+    copy = step % every == 0
+    return jax.tree.map(lambda c, s: jnp.where(copy, c, s), critic, slow_critic)
+
+
+# --- imagination and losses ---------------------------------------------------------------------
+
+class Imagined(NamedTuple):
+    """One imagined trajectory with everything the losses need (shapes for horizon H)."""
+
+    feat: jax.Array  # [H+1, F]
+    action: jax.Array  # [H+1, A]; action[H] is unused
+    reward: jax.Array  # [H+1]; reward[0] unused
+    discount: jax.Array  # [H+1]; discount[0] unused
+    slow_value: jax.Array  # [H+1]
+    returns: jax.Array  # [H]
+    weight: jax.Array  # [H], stop-gradient
+
+
+class WorldFns(NamedTuple):
+    """The three world-model callables behaviour learning needs (see the module docstring)."""
+
+    rollout: Callable
+    reward: Callable
+    discount: Callable
+
+
+def imagine(behaviour: Behaviour, actor_params, slow_critic_params, world: WorldFns, start,
+            start_continue: jax.Array, key: jax.Array) -> Imagined:
+    """Roll the prior H steps from ``start`` (stop-gradient) with actions sampled from the actor
+    (which sees stop-gradient features, as DreamerV2), then compute returns and weights.
+
+    Gradients w.r.t. ``actor_params`` flow through the sampled actions into every later state,
+    reward, discount and slow value (dynamics backprop); the slow critic's parameters are
+    constants here.
+    """
+    def policy(feat, policy_key):
+        return behaviour.policy(actor_params, sg(feat)).sample(policy_key)
+
+    feat, action = world.rollout(policy, jax.tree.map(sg, start), key)
+    reward, discount = world.reward(feat), world.discount(feat)
+    slow_value = behaviour.value(sg(slow_critic_params), feat)
+    returns = lambda_returns(reward[1:], discount[1:], slow_value[1:], behaviour.cfg.lam)
+    return Imagined(feat, action, reward, discount, slow_value, returns,
+                    return_weights(discount, start_continue))
+
+
+def actor_objective(behaviour: Behaviour, actor_params, imagined: Imagined) -> tuple:
+    """Per-step actor objective for t = 0..H-1 (to be maximised) and the policy entropy."""
+    policy = behaviour.policy(actor_params, sg(imagined.feat[:-1]))
+    mix = behaviour.dynamics_weight
+    objective = jnp.zeros_like(imagined.returns)
+    if mix > 0.0:
+        objective += mix * imagined.returns
+    if mix < 1.0:
+        advantage = sg(imagined.returns - imagined.slow_value[:-1])
+        objective += (1.0 - mix) * policy.log_prob(sg(imagined.action[:-1])) * advantage
+    entropy = policy.entropy()
+    return objective + behaviour.cfg.entropy * entropy, entropy
+
+
+def actor_loss(actor_params, behaviour: Behaviour, slow_critic_params, world: WorldFns, starts,
+               start_continue: jax.Array, keys: jax.Array) -> tuple:
+    """−mean over starts and t of w_t·objective_t; vmapped over the leading axis of ``starts``.
+
+    With pure REINFORCE the imagined trajectory is built from stop-gradient actor parameters
+    (no gradient is needed through the dynamics). Returns (loss, (imagined, metrics)).
+    """
+    rollout_params = actor_params if behaviour.dynamics_weight > 0.0 else sg(actor_params)
+
+    def one_start(start, cont, key):
+        imagined = imagine(behaviour, rollout_params, slow_critic_params, world, start, cont, key)
+        objective, entropy = actor_objective(behaviour, actor_params, imagined)
+        return -jnp.mean(imagined.weight * objective), (imagined, entropy)
+
+    losses, (imagined, entropy) = jax.vmap(one_start)(starts, start_continue, keys)
+    metrics = {
+        "actor/loss": losses.mean(),
+        "actor/entropy": entropy.mean(),
+        "imag/reward": imagined.reward[:, 1:].mean(),
+        "imag/discount": imagined.discount[:, 1:].mean(),
+        "imag/return": imagined.returns.mean(),
+        "imag/weight": imagined.weight.mean(),
+        "critic/slow_value": imagined.slow_value.mean(),
+    }
+    return losses.mean(), (jax.tree.map(sg, imagined), metrics)
+
+
+def critic_loss(critic_params, behaviour: Behaviour, imagined: Imagined) -> tuple:
+    """−mean(w_t · log N(sg(V_t) | v(sg(feat_t)), 1)) over starts and t = 0..H-1.
+
+    Features, targets and weights are stop-gradient, so this loss trains the critic only.
+    """
+    value = behaviour.value(critic_params, sg(imagined.feat[..., :-1, :]))
+    log_prob = normal_log_prob(value, sg(imagined.returns))
+    loss = -jnp.mean(sg(imagined.weight) * log_prob)
+    return loss, {"critic/loss": loss, "critic/value": value.mean()}

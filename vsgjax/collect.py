@@ -1,0 +1,250 @@
+"""Experience collection across the host boundary: policy on the device, envs in Python.
+
+Two drivers with the same interface and, given the same seeds, the same transitions:
+
+* ``mode="scan"`` (default): one jitted ``jax.lax.scan`` over a chunk of ``chunk`` agent steps.
+  Each step runs the policy on the device, then steps all envs with an ordered
+  ``jax.experimental.io_callback`` into :meth:`EnvBatch.step`::
+
+      obs_0 ──policy──▶ a_0 ──io_callback(env.step)──▶ obs_1 ──policy──▶ a_1 ──▶ ... obs_K
+
+* ``mode="loop"``: a Python loop that calls a jitted policy step, pulls the action to the host
+  and steps the envs.
+
+``experiments/bench/bench_collect.py`` measures the boundary's cost per step for both; the
+default is the faster one there (see ``/work/brief/readme_envs.md`` for the numbers).
+
+Observations reach the policy as a dict of ``[N, ...]`` arrays: ``image`` uint8, ``reward``
+float32, ``is_first``, ``is_terminal``, ``is_last`` bool. Envs use gymnasium's NEXT_STEP
+autoreset: the step after an ``is_last`` observation ignores the action and returns the new
+episode's first observation (``is_first``, reward 0). Every observation therefore reaches the
+policy exactly once, in order, as in the sequence format of the replay (a policy's carry resets
+where ``is_first``). Each env's transitions are recorded into episode dicts in that format::
+
+      image [T,H,W,C] uint8, action [T,A] float32 (the action that led to obs t; zeros at t=0;
+      one-hot if discrete), reward [T] float32 (0 at t=0), is_first [T], is_terminal [T] bool
+
+and every finished episode is handed to ``on_episode(episode, env_index, info)`` after the
+chunk in which it finished (outside jit, so the callback may use JAX, write files or log).
+``info`` has ``return``, ``length`` (agent steps, i.e. T - 1) and the scalar entries of the
+env's info dict at the last step (e.g. BringBackShapes' discovery metrics).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.experimental import io_callback
+
+from vsgjax.config import EnvConfig
+from vsgjax.envs import EnvSpec, env_spec, make_env
+
+Policy = Callable[[Any, Any, dict, jax.Array], tuple[Any, jax.Array]]
+OnEpisode = Callable[[dict, int, dict], None]
+MODES = ("scan", "loop")
+DEFAULT_CHUNK = 50
+EPISODE_KEYS = ("image", "action", "reward", "is_first", "is_terminal")
+
+
+# --- host side -------------------------------------------------------------------------------
+
+
+class EnvBatch:
+    """N envs stepped together on the host (worker processes when N > 1), recording episodes.
+
+    ``env_fns`` build the envs; they must be picklable when workers are used (module-level
+    functions or ``functools.partial`` of them).
+    """
+
+    def __init__(self, env_fns: Sequence[Callable[[], gymnasium.Env]], *,
+                 workers: bool | None = None):
+        workers = len(env_fns) > 1 if workers is None else workers
+        mode = gymnasium.vector.AutoresetMode.NEXT_STEP
+        if workers:
+            self._envs = gymnasium.vector.AsyncVectorEnv(env_fns, context="spawn",
+                                                         autoreset_mode=mode)
+        else:
+            self._envs = gymnasium.vector.SyncVectorEnv(env_fns, autoreset_mode=mode)
+        self.spec: EnvSpec = env_spec(self._envs)
+        self.num_envs = len(env_fns)
+        self._done = np.zeros(self.num_envs, bool)
+        self._episodes: list[dict[str, list]] = [_empty_episode() for _ in range(self.num_envs)]
+        self._returns = np.zeros(self.num_envs, np.float64)
+        self.finished: list[tuple[dict, int, dict]] = []
+
+    def observation_struct(self) -> dict[str, jax.ShapeDtypeStruct]:
+        """Shapes and dtypes of one batched observation (the io_callback's result)."""
+        n = self.num_envs
+        return {"image": jax.ShapeDtypeStruct((n, *self.spec.obs_shape), jnp.uint8),
+                "reward": jax.ShapeDtypeStruct((n,), jnp.float32),
+                "is_first": jax.ShapeDtypeStruct((n,), jnp.bool_),
+                "is_terminal": jax.ShapeDtypeStruct((n,), jnp.bool_),
+                "is_last": jax.ShapeDtypeStruct((n,), jnp.bool_)}
+
+    def reset(self) -> dict[str, np.ndarray]:
+        """Reset every env (each with the seed it was made with) and start new episodes."""
+        images, _ = self._envs.reset()
+        n = self.num_envs
+        self._done[:] = False
+        self._episodes = [_empty_episode() for _ in range(n)]
+        self._returns[:] = 0.0
+        obs = _observation(images, np.zeros(n, np.float32), np.ones(n, bool),
+                           np.zeros(n, bool), np.zeros(n, bool))
+        self._record(obs, np.zeros((n, self.spec.action_dim), np.float32), {})
+        return obs
+
+    def step(self, action: np.ndarray) -> dict[str, np.ndarray]:
+        """Step every env with the agent's actions ``[N, A]`` (one-hot if discrete)."""
+        action = np.asarray(action, np.float32)
+        env_action = action.argmax(-1) if self.spec.discrete else action
+        images, reward, terminated, truncated, infos = self._envs.step(env_action)
+        is_first = self._done.copy()  # NEXT_STEP: these envs just reset and ignored the action
+        self._done = terminated | truncated
+        obs = _observation(images, reward.astype(np.float32), is_first, terminated, self._done)
+        self._record(obs, np.where(is_first[:, None], 0.0, action).astype(np.float32), infos)
+        return obs
+
+    def _record(self, obs: dict[str, np.ndarray], action: np.ndarray, infos: dict) -> None:
+        for i in range(self.num_envs):
+            if obs["is_first"][i]:
+                self._episodes[i] = _empty_episode()
+                self._returns[i] = 0.0
+            episode = self._episodes[i]
+            for key in ("image", "reward", "is_first", "is_terminal"):
+                episode[key].append(obs[key][i])
+            episode["action"].append(action[i])
+            self._returns[i] += obs["reward"][i]
+            if obs["is_last"][i]:
+                info = {"return": float(self._returns[i]), "length": len(episode["reward"]) - 1,
+                        **_env_info(infos, i)}
+                self.finished.append(({k: np.stack(v) for k, v in episode.items()}, i, info))
+
+    def close(self) -> None:
+        self._envs.close()
+
+
+def _empty_episode() -> dict[str, list]:
+    return {key: [] for key in EPISODE_KEYS}
+
+
+def _observation(images, reward, is_first, is_terminal, is_last) -> dict[str, np.ndarray]:
+    return {"image": images, "reward": reward, "is_first": is_first,
+            "is_terminal": is_terminal, "is_last": is_last}
+
+
+def _env_info(infos: dict, index: int) -> dict[str, float]:
+    """Env ``index``'s scalar info entries from a vector env's batched info dict."""
+    values = {}
+    for key, value in infos.items():
+        if key.startswith("_") or not infos.get(f"_{key}", np.ones(index + 1, bool))[index]:
+            continue
+        if isinstance(value, dict):
+            values.update({f"{key}/{k}": v for k, v in _env_info(value, index).items()})
+        elif isinstance(value, np.ndarray) and value.ndim == 1 and value.dtype.kind in "biuf":
+            values[key] = value[index].item()
+    return values
+
+
+def make_env_batch(env_cfg: EnvConfig, seed: int, num_envs: int, *, eval: bool = False,
+                   workers: bool | None = None) -> EnvBatch:
+    """``num_envs`` envs of ``env_cfg.task`` seeded ``seed, seed + 1, ...``."""
+    if num_envs < 1:
+        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    fns = [functools.partial(make_env, env_cfg, seed + i, eval=eval) for i in range(num_envs)]
+    return EnvBatch(fns, workers=workers)
+
+
+# --- device side -----------------------------------------------------------------------------
+
+
+def random_policy(spec: EnvSpec) -> Policy:
+    """Uniform random actions in the agent's format (one-hot if discrete); carry unused."""
+
+    def policy(params, carry, obs, key):
+        n = obs["is_first"].shape[0]
+        if spec.discrete:
+            index = jax.random.randint(key, (n,), 0, spec.action_dim)
+            return carry, jax.nn.one_hot(index, spec.action_dim, dtype=jnp.float32)
+        return carry, jax.random.uniform(key, (n, spec.action_dim), jnp.float32, -1.0, 1.0)
+
+    return policy
+
+
+class Collector:
+    """Runs ``policy`` in ``envs`` a chunk of ``chunk`` agent steps at a time.
+
+    ``policy(params, carry, obs, key) -> (carry, action[N, A])`` is any jittable function over
+    the batched observation dict; the step-``k`` key is ``jax.random.split(key, chunk)[k]``.
+    """
+
+    def __init__(self, envs: EnvBatch, policy: Policy, *, chunk: int = DEFAULT_CHUNK,
+                 mode: str = "scan", on_episode: OnEpisode | None = None):
+        if mode not in MODES:
+            raise ValueError(f"unknown collection mode {mode!r}; valid: {', '.join(MODES)}")
+        if chunk < 1:
+            raise ValueError(f"chunk must be >= 1 agent step, got {chunk}")
+        self.envs, self.chunk, self.mode = envs, chunk, mode
+        self._on_episode = on_episode
+        self._policy_step = jax.jit(policy)
+        self._scan = jax.jit(functools.partial(_scan_chunk, policy, envs, chunk))
+        self._obs: dict | None = None
+
+    def reset(self) -> None:
+        """Start over: the next :meth:`run` resets every env (unfinished episodes are dropped).
+        The caller resets its policy carry too (or relies on the policy resetting at is_first)."""
+        self._obs = None
+        self.envs.finished = []
+
+    def run(self, params, carry, key: jax.Array) -> tuple[Any, dict[str, np.ndarray]]:
+        """Collect one chunk; returns the new carry and the chunk's stream ``[chunk, N, ...]``:
+        ``action`` (taken at step k) and the ``reward``, ``is_first``, ``is_terminal`` and
+        ``is_last`` of the observation it led to. Finished episodes go to ``on_episode``."""
+        if self._obs is None:
+            self._obs = self.envs.reset()
+        if self.mode == "scan":
+            carry, self._obs, stream = self._scan(params, carry, self._obs, key)
+        else:
+            carry, stream = self._loop(params, carry, key)
+        self._deliver_episodes()
+        return carry, jax.tree.map(np.asarray, stream)
+
+    def _loop(self, params, carry, key):
+        steps = []
+        for step_key in np.asarray(jax.random.split(key, self.chunk)):
+            carry, action = self._policy_step(params, carry, self._obs, step_key)
+            action = np.asarray(action)
+            self._obs = self.envs.step(action)
+            steps.append(_stream_entry(action, self._obs))
+        return carry, {k: np.stack([s[k] for s in steps]) for k in steps[0]}
+
+    def _deliver_episodes(self) -> None:
+        finished, self.envs.finished = self.envs.finished, []
+        if self._on_episode is not None:
+            for episode, index, info in finished:
+                self._on_episode(episode, index, info)
+
+    def close(self) -> None:
+        self.envs.close()
+
+
+def _stream_entry(action, obs: dict) -> dict:
+    return {"action": action, **{k: v for k, v in obs.items() if k != "image"}}
+
+
+def _scan_chunk(policy: Policy, envs: EnvBatch, chunk: int, params, carry, obs, key):
+    struct = envs.observation_struct()
+
+    def body(state, step_key):
+        carry, obs = state
+        carry, action = policy(params, carry, obs, step_key)
+        obs = io_callback(envs.step, struct, action, ordered=True)
+        return (carry, obs), _stream_entry(action, obs)
+
+    (carry, obs), stream = jax.lax.scan(body, (carry, obs), jax.random.split(key, chunk))
+    return carry, obs, stream

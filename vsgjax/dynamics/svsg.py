@@ -1,0 +1,88 @@
+"""SVSG: the purely stochastic, sparse-gated model (no deterministic state).
+
+The sparse cell's recurrent state is the Gaussian latent ``z`` itself; the gate decides which
+latent units are resampled and which are copied::
+
+    x = ELU(Dense([z_prev, a_prev]));  (ĉ, g, p) = sparse cell(x, z_prev)
+    prior ẑ ~ stats(ELU(Dense(ĉ)));          z_prior = g ⊙ ẑ_prior + (1 - g) ⊙ z_prev
+    post  ẑ ~ stats(ELU(Dense([ĉ, e])));     z_post  = g ⊙ ẑ_post  + (1 - g) ⊙ z_prev  (same g)
+    feat = z
+
+A state's ``dist`` is the distribution of the candidate ``ẑ``; the world model's masked KL
+multiplies its per-dimension KL by ``g``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+
+from vsgjax.cells import cell_init, dense, dense_init, gated_update, sparse_gru_cell
+from vsgjax.dynamics.base import Dynamics, SVSGState
+
+
+@dataclass(frozen=True)
+class SVSG(Dynamics):
+    def __post_init__(self):
+        super().__post_init__()
+        if self.cfg.classes != 0:
+            raise ValueError(
+                f"svsg gates its latent per unit and needs Gaussian latents (model.classes=0), "
+                f"got model.classes={self.cfg.classes}"
+            )
+
+    @property
+    def gated(self) -> bool:
+        return True
+
+    @property
+    def feat_dim(self) -> int:
+        return self.cfg.stoch
+
+    def init(self, key: jax.Array, embed_dim: int, action_dim: int) -> dict:
+        cfg, latent = self.cfg, self.latent
+        keys = jax.random.split(key, 7)
+        return {
+            "img_in": dense_init(keys[0], cfg.stoch + action_dim, cfg.hidden),
+            "cell": cell_init(keys[1], cfg.hidden, cfg.stoch, cfg.cell_norm),
+            "img_out": dense_init(keys[2], cfg.stoch, cfg.hidden),
+            "img_stats": dense_init(keys[3], cfg.hidden, latent.stats_dim),
+            "obs_cand": dense_init(keys[4], cfg.stoch, cfg.hidden),
+            "obs_embed": dense_init(keys[5], embed_dim, cfg.hidden, bias=False),
+            "obs_stats": dense_init(keys[6], cfg.hidden, latent.stats_dim),
+        }
+
+    def initial(self) -> SVSGState:
+        stoch, dist = self.latent.zeros()
+        return SVSGState(stoch, dist, jnp.zeros_like(stoch), jnp.zeros_like(stoch))
+
+    def _prior(self, params, prev, action, key) -> tuple[SVSGState, jax.Array]:
+        """Prior state and the cell's candidate ``ĉ`` (which the posterior also reads)."""
+        cell_key, stoch_key = jax.random.split(key)
+        x = jax.nn.elu(dense(params["img_in"], jnp.concatenate([prev.stoch, action], -1)))
+        out = sparse_gru_cell(
+            params["cell"], prev.stoch, x, cell_key, self.cfg.gate_bias, self.cfg.gate_mode
+        )
+        hidden = jax.nn.elu(dense(params["img_out"], out.candidate))
+        dist = self.latent.from_raw(dense(params["img_stats"], hidden))
+        stoch = gated_update(out.gate, dist.sample(stoch_key), prev.stoch)
+        return SVSGState(stoch, dist, out.gate, out.gate_logit), out.candidate
+
+    def img_step(self, params, prev, action, key):
+        return self._prior(params, prev, action, key)[0]
+
+    def project_embed(self, params, embed):
+        return dense(params["obs_embed"], embed)
+
+    def _obs_step_projected(self, params, prev, action, embed_proj, key):
+        prior_key, post_key = jax.random.split(key)
+        prior, candidate = self._prior(params, prev, action, prior_key)
+        hidden = jax.nn.elu(dense(params["obs_cand"], candidate) + embed_proj)
+        dist = self.latent.from_raw(dense(params["obs_stats"], hidden))
+        stoch = gated_update(prior.gate, dist.sample(post_key), prev.stoch)
+        return prior._replace(stoch=stoch, dist=dist), prior
+
+    def feat(self, state):
+        return state.stoch

@@ -1,0 +1,225 @@
+"""The world model: encoder, latent dynamics, decoder and heads, and its loss (spec section 3).
+
+    L = -ln p(x|s) - reward_scale ln p(r|s) [- discount_scale ln p(γ|s)] + L_kl + L_gate
+
+    L_kl = kl_scale [ (1 - balance) max(mean KL(q || sg p), free)
+                      +     balance  max(mean KL(sg q || p), free) ]
+
+The KL of one step is summed over the latent dimensions (for SVSG with ``kl_masked`` each
+dimension's KL is first multiplied by the straight-through gate sample, so closed units cost
+nothing and the mask passes gradient into the gate probability); the free nats clamp the mean
+over the whole batch, not each step. ``L_gate`` is the gate sparsity loss of
+:mod:`vsgjax.gates`. Log-likelihoods are summed over pixels and averaged over batch and time.
+
+All per-step terms are computed per sequence (:meth:`WorldModel.sequence_terms`, unbatched) and
+vmapped over the batch with one PRNG key per sequence.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from vsgjax import gates
+from vsgjax.config import Config
+from vsgjax.dynamics import make_dynamics
+from vsgjax.networks import (
+    MLP,
+    ConvDecoder,
+    ConvEncoder,
+    bernoulli_log_prob,
+    embed_dim,
+    image_to_float,
+    normal_log_prob,
+)
+
+sg = jax.lax.stop_gradient
+
+
+def per_step_kl(dyn, lhs, rhs, mask: jax.Array | None = None) -> jax.Array:
+    """KL(lhs || rhs) of stacked states [T, ...] -> [T], summed over latent dimensions.
+
+    ``mask`` [T, D] (the straight-through gate sample) multiplies the per-dimension KL first.
+    """
+    kl = jax.vmap(dyn.kl)(lhs, rhs)
+    if mask is not None:
+        kl = kl * mask
+    return kl.reshape(kl.shape[0], -1).sum(-1)
+
+
+def balanced_kl_loss(kl_rep: jax.Array, kl_dyn: jax.Array, scale: float, balance: float,
+                     free: float) -> jax.Array:
+    """``scale·[(1-balance)·max(kl_rep, free) + balance·max(kl_dyn, free)]``.
+
+    ``kl_rep`` = mean KL(q ‖ sg p) (trains the posterior), ``kl_dyn`` = mean KL(sg q ‖ p)
+    (trains the prior); both are batch means, so the free nats clamp the average KL.
+    """
+    return scale * ((1.0 - balance) * jnp.maximum(kl_rep, free)
+                    + balance * jnp.maximum(kl_dyn, free))
+
+
+@dataclasses.dataclass(frozen=True)
+class WorldModel:
+    """Encoder + dynamics + decoder + reward (+ discount) heads. Hashable: usable as a jit static."""
+
+    config: Config
+    obs_shape: tuple[int, int, int] = (64, 64, 3)
+    action_dim: int = 2
+
+    def __post_init__(self):
+        if tuple(self.obs_shape[:2]) != (64, 64) or len(self.obs_shape) != 3:
+            raise ValueError(f"obs_shape must be (64, 64, C), got {self.obs_shape!r}")
+        object.__setattr__(self, "obs_shape", tuple(int(d) for d in self.obs_shape))
+
+    # --- modules ---------------------------------------------------------------------------
+
+    @functools.cached_property
+    def dynamics(self):
+        return make_dynamics(self.config.model)
+
+    @property
+    def encoder(self) -> ConvEncoder:
+        return ConvEncoder(self.config.wm.cnn_depth)
+
+    @property
+    def decoder(self) -> ConvDecoder:
+        return ConvDecoder(self.config.wm.cnn_depth, self.obs_shape[-1])
+
+    @property
+    def reward_head(self) -> MLP:
+        return MLP(self.config.wm.reward_layers, self.config.wm.mlp_units)
+
+    @property
+    def discount_head(self) -> MLP:
+        return MLP(self.config.wm.discount_layers, self.config.wm.mlp_units)
+
+    # --- parameters --------------------------------------------------------------------------
+
+    def init(self, key: jax.Array) -> dict:
+        """Parameters ``{encoder, dynamics, decoder, reward[, discount]}`` (plain nested dicts)."""
+        k_enc, k_dyn, k_dec, k_rew, k_dis = jax.random.split(key, 5)
+        image = jnp.zeros(self.obs_shape, jnp.float32)
+        feat = jnp.zeros((self.dynamics.feat_dim,), jnp.float32)
+        params = {
+            "encoder": self.encoder.init(k_enc, image)["params"],
+            "dynamics": self.dynamics.init(k_dyn, embed_dim(self.config.wm.cnn_depth),
+                                           self.action_dim),
+            "decoder": self.decoder.init(k_dec, feat)["params"],
+            "reward": self.reward_head.init(k_rew, feat)["params"],
+        }
+        if self.config.wm.discount_head:
+            params["discount"] = self.discount_head.init(k_dis, feat)["params"]
+        return params
+
+    # --- pieces the actor-critic and notebooks use (any leading batch dims) -----------------
+
+    def encode(self, params: dict, image: jax.Array) -> jax.Array:
+        """uint8 (or already scaled float) images [..., 64, 64, C] -> embeddings [..., E]."""
+        return self.encoder.apply({"params": params["encoder"]}, image_to_float(image))
+
+    def decode(self, params: dict, feat: jax.Array) -> jax.Array:
+        """Features [..., F] -> mean image [..., 64, 64, C] in [-0.5, 0.5] units."""
+        return self.decoder.apply({"params": params["decoder"]}, feat)
+
+    def reward_mean(self, params: dict, feat: jax.Array) -> jax.Array:
+        """Mean of the reward Normal(σ=1) (in tanh units when ``reward_tanh``)."""
+        return self.reward_head.apply({"params": params["reward"]}, feat)
+
+    def discount_logits(self, params: dict, feat: jax.Array) -> jax.Array:
+        return self.discount_head.apply({"params": params["discount"]}, feat)
+
+    def discount_prob(self, params: dict, feat: jax.Array) -> jax.Array:
+        """P(episode continues | s): the discount head's Bernoulli mean, or ones without a head."""
+        if not self.config.wm.discount_head:
+            return jnp.ones(feat.shape[:-1], feat.dtype)
+        return jax.nn.sigmoid(self.discount_logits(params, feat))
+
+    def observe(self, params: dict, seq: dict, key: jax.Array):
+        """Posterior and prior states [T, ...] of one sequence (dict of [T, ...] arrays)."""
+        embeds = self.encode(params, seq["image"])
+        return self.dynamics.observe(params["dynamics"], embeds, seq["action"].astype(jnp.float32),
+                                     seq["is_first"], key)
+
+    # --- loss --------------------------------------------------------------------------------
+
+    def sequence_terms(self, params: dict, seq: dict, key: jax.Array):
+        """Per-step loss ingredients of ONE sequence, each [T] (gate arrays [T, units]).
+
+        Returns ``(terms, posts)``; :meth:`loss` vmaps this over the batch.
+        """
+        wm, dyn = self.config.wm, self.dynamics
+        posts, priors = self.observe(params, seq, key)
+        feats = jax.vmap(dyn.feat)(posts)
+        target = image_to_float(seq["image"])
+        reward = jnp.tanh(seq["reward"]) if wm.reward_tanh else seq["reward"]
+        terms = {
+            "image_logp": normal_log_prob(self.decode(params, feats), target, event_dims=3),
+            "reward_logp": normal_log_prob(self.reward_mean(params, feats), reward),
+            "kl_rep": self._kl(posts, sg(priors), posts),
+            "kl_dyn": self._kl(sg(posts), priors, posts),
+            "kl_prior_post": self._kl(priors, posts, posts, masked=False),
+            "post_entropy": jax.vmap(dyn.entropy)(posts),
+            "prior_entropy": jax.vmap(dyn.entropy)(priors),
+        }
+        if wm.discount_head:
+            continuing = 1.0 - seq["is_terminal"].astype(jnp.float32)
+            terms["discount_logp"] = bernoulli_log_prob(self.discount_logits(params, feats),
+                                                        continuing)
+        if dyn.gated:
+            terms["gate_sample"] = jax.vmap(dyn.gates)(posts)[0]
+            terms["gate_logit"] = jax.vmap(dyn.gate_logits)(posts)
+        return terms, posts
+
+    def _kl(self, lhs, rhs, posts, masked: bool | None = None) -> jax.Array:
+        """Per-step KL(lhs || rhs) [T], gate-masked if ``wm.kl_masked`` (or ``masked``)."""
+        masked = self.config.wm.kl_masked if masked is None else masked
+        return per_step_kl(self.dynamics, lhs, rhs, self._kl_mask(posts) if masked else None)
+
+    def _kl_mask(self, posts) -> jax.Array:
+        """The straight-through gate samples [T, D] of the posteriors, one per latent dim (SVSG)."""
+        dyn = self.dynamics
+        if not dyn.gated:
+            raise ValueError(f"wm.kl_masked needs a gated model, got model {self.config.model.name!r}")
+        sample = jax.vmap(dyn.gates)(posts)[0]
+        latent_shape = jax.eval_shape(dyn.kl, dyn.initial(), dyn.initial()).shape
+        if sample.shape[1:] != latent_shape:
+            raise ValueError(
+                f"wm.kl_masked needs one gate per latent dimension (svsg); model "
+                f"{self.config.model.name!r} has gates {sample.shape[1:]} and KL {latent_shape}")
+        return sample
+
+    def loss(self, params: dict, batch: dict, key: jax.Array):
+        """World-model loss of a [B, T] batch -> ``(loss, (metrics, posts))``.
+
+        ``posts`` are the posterior states with leading [B, T] dims (the actor-critic's start
+        states). ``metrics`` holds every loss term, both KL directions, entropies and gate stats.
+        """
+        wm = self.config.wm
+        keys = jax.random.split(key, batch["image"].shape[0])
+        terms, posts = jax.vmap(self.sequence_terms, in_axes=(None, 0, 0))(params, batch, keys)
+        kl_rep, kl_dyn = terms["kl_rep"].mean(), terms["kl_dyn"].mean()
+        losses = {
+            "image_loss": -terms["image_logp"].mean(),
+            "reward_loss": -wm.reward_scale * terms["reward_logp"].mean(),
+            "kl_loss": balanced_kl_loss(kl_rep, kl_dyn, wm.kl_scale, wm.kl_balance, wm.kl_free),
+        }
+        if wm.discount_head:
+            losses["discount_loss"] = -wm.discount_scale * terms["discount_logp"].mean()
+        metrics = {
+            "kl": kl_rep,
+            "kl_prior_post": terms["kl_prior_post"].mean(),
+            "post_entropy": terms["post_entropy"].mean(),
+            "prior_entropy": terms["prior_entropy"].mean(),
+        }
+        if self.dynamics.gated:
+            losses["gate_loss"] = gates.sparsity_loss(terms["gate_logit"], wm.gate_kappa,
+                                                      wm.gate_alpha, wm.gate_free)
+            metrics["gate_kl"] = gates.mean_gate_kl(terms["gate_logit"], wm.gate_kappa)
+            metrics.update(gates.gate_statistics(terms["gate_sample"],
+                                                 jax.nn.sigmoid(terms["gate_logit"])))
+        loss = sum(losses.values())
+        metrics.update(losses, loss=loss)
+        return loss, (metrics, posts)
