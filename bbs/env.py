@@ -126,6 +126,8 @@ class BringBackShapesEnv(gym.Env):
             self.action_space = gym.spaces.Box(
                 np.array([0.0, 0.0], np.float32), np.array([TWO_PI, MAX_FORCE], np.float32))
         self._sim: Simulation | None = None
+        self._last_scene: Scene | None = None
+        self.layout: Layout | None = None  # this episode's starting layout (set by reset)
         self._window = None
 
     # ----------------------------------------------------------------------------- episode
@@ -138,7 +140,7 @@ class BringBackShapesEnv(gym.Env):
         if layout_spec is None:
             layout = self._sample_layout()
         else:
-            layout = parse_layout(layout_spec, self._default_geometry.goal_y_range)
+            layout = parse_layout(layout_spec, self._default_geometry)
             if not layout.objects:
                 raise ValueError("layout must contain at least one object")
         self.layout = layout
@@ -217,7 +219,7 @@ class BringBackShapesEnv(gym.Env):
         return observation
 
     def _info(self) -> dict:
-        info = {"scored": int(self._sim.scored.sum()), "sub_steps": self._sub_steps}
+        info = {"scored": self._sim.num_scored, "sub_steps": self._sub_steps}
         if self.include_state_in_info:
             info["state"] = self.true_state()
         return info

@@ -84,6 +84,17 @@ class ArenaGeometry:
             Rect(self.goal_x, self.goal_y + self.goal_height, inner_right, length - t),
         )
 
+    @cached_property
+    def drawn_goal_rect(self) -> Rect:
+        """The goal as the original draws it: ``pygame.Rect`` truncation, right/bottom exclusive."""
+        x, y = int(self.goal_x), int(self.goal_y)
+        return Rect(x, y, x + GOAL_WIDTH - 1, y + int(self.goal_height) - 1)
+
+    @cached_property
+    def drawn_walls(self) -> tuple[Rect, ...]:
+        """The walls as the original draws them: vertices rounded, boundary pixels included."""
+        return tuple(Rect(round(r.x0), round(r.y0), round(r.x1), round(r.y1)) for r in self.walls)
+
     @property
     def goal_y_range(self) -> tuple[float, float]:
         """Admissible ``goal_y`` values: the opening must stay between the top and bottom walls."""

@@ -103,21 +103,25 @@ def sample_layout(
     return Layout(agent, tuple(objects), distractors, goal_y)
 
 
-def _placement_fields(entry: Mapping, where: str) -> dict:
+def _placement_fields(entry: Mapping, where: str, geometry: ArenaGeometry) -> dict:
     if not isinstance(entry, Mapping) or "position" not in entry:
         raise ValueError(f"layout {where} must be a mapping with 'position': (x, y); got {entry!r}")
     position = entry["position"]
     if len(position) != 2 or not all(np.isfinite(float(v)) for v in position):
         raise ValueError(f"layout {where} position must be two finite numbers; got {position!r}")
+    x, y = (float(v) for v in position)
+    if not (0 <= x <= geometry.width and 0 <= y <= geometry.length):
+        raise ValueError(f"layout {where} position {position!r} lies outside the "
+                         f"{geometry.width}x{geometry.length} arena")
     angle = float(entry.get("angle", 0.0))
     if not np.isfinite(angle):
         raise ValueError(f"layout {where} angle must be finite; got {angle!r}")
-    return {"x": float(position[0]), "y": float(position[1]), "angle": angle}
+    return {"x": x, "y": y, "angle": angle}
 
 
-def _object_placement(entry: Mapping, index: int) -> ObjectPlacement:
+def _object_placement(entry: Mapping, index: int, geometry: ArenaGeometry) -> ObjectPlacement:
     where = f"objects[{index}]"
-    fields = _placement_fields(entry, where)
+    fields = _placement_fields(entry, where, geometry)
     shape, colour = entry.get("shape"), entry.get("colour")
     if shape not in OBJECT_SHAPES:
         raise ValueError(f"layout {where} shape {shape!r} is not one of {SHAPE_NAMES}")
@@ -126,8 +130,8 @@ def _object_placement(entry: Mapping, index: int) -> ObjectPlacement:
     return ObjectPlacement(**fields, shape=shape, colour=colour)
 
 
-def parse_layout(spec: Mapping | Layout, geometry_goal_range: tuple[float, float]) -> Layout:
-    """Validate a user layout (see module docstring) and turn it into a ``Layout``."""
+def parse_layout(spec: Mapping | Layout, geometry: ArenaGeometry) -> Layout:
+    """Validate a user layout (see module docstring) against the arena, into a ``Layout``."""
     if isinstance(spec, Layout):
         spec = spec.to_dict()
     if not isinstance(spec, Mapping) or "agent" not in spec:
@@ -137,15 +141,17 @@ def parse_layout(spec: Mapping | Layout, geometry_goal_range: tuple[float, float
         raise ValueError(f"layout has unknown keys {sorted(unknown)}")
     goal_y = spec.get("goal_y")
     if goal_y is not None:
-        low, high = geometry_goal_range
+        low, high = geometry.goal_y_range
         if not low <= float(goal_y) <= high:
             raise ValueError(f"layout goal_y={goal_y!r} must lie in [{low}, {high}]")
         goal_y = float(goal_y)
     return Layout(
-        agent=Placement(**_placement_fields(spec["agent"], "agent")),
-        objects=tuple(_object_placement(o, i) for i, o in enumerate(spec.get("objects", ()))),
+        agent=Placement(**_placement_fields(spec["agent"], "agent", geometry)),
+        objects=tuple(
+            _object_placement(o, i, geometry) for i, o in enumerate(spec.get("objects", ()))
+        ),
         distractors=tuple(
-            Placement(**_placement_fields(d, f"distractors[{i}]"))
+            Placement(**_placement_fields(d, f"distractors[{i}]", geometry))
             for i, d in enumerate(spec.get("distractors", ()))
         ),
         goal_y=goal_y,

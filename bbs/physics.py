@@ -215,6 +215,10 @@ class Simulation:
             self.scored[i] = True
         return len(crossed)
 
+    @property
+    def num_scored(self) -> int:
+        return len(self.object_bodies) - len(self.remaining)
+
     def control_and_score(self, angle: float, force: float, rng: np.random.Generator) -> int:
         """Apply this sub-step's forces and remove scored objects; returns how many scored."""
         self._push_distractors(rng)

@@ -94,16 +94,12 @@ def view_box(agent: Pose, half_size: int, geometry: ArenaGeometry) -> ViewBox:
     return ViewBox(int(x0), int(y0), size)
 
 
-def polygon_points(local: tuple[tuple[float, float], ...], pose: Pose) -> list[tuple[float, float]]:
-    """Local polygon vertices placed at ``pose`` (rotation about the body origin)."""
+def placed_vertices(local: tuple[tuple[float, float], ...],
+                    pose: Pose) -> tuple[list[float], list[float]]:
+    """World x and y of local polygon vertices placed at ``pose`` (rotation about the origin)."""
     c, s = math.cos(pose.angle), math.sin(pose.angle)
     x, y = pose.x, pose.y
-    return [(x + c * lx - s * ly, y + s * lx + c * ly) for lx, ly in local]
-
-
-def _bounding_box(points: list[tuple[float, float]]) -> tuple[float, float, float, float]:
-    xs, ys = [p[0] for p in points], [p[1] for p in points]
-    return min(xs), min(ys), max(xs), max(ys)
+    return [x + c * lx - s * ly for lx, ly in local], [y + s * lx + c * ly for lx, ly in local]
 
 
 class _Canvas:
@@ -145,9 +141,12 @@ class _Canvas:
         bx0, by0, bx1, by1 = self.bounds
         return x0 <= bx1 and x1 >= bx0 and y0 <= by1 and y1 >= by0
 
-    def polygon(self, points: list[tuple[float, float]], colour) -> None:
-        fixed = np.array([self._fixed(x, y) for x, y in points], dtype=np.int32)
-        cv2.fillConvexPoly(self.image, fixed, colour, cv2.LINE_8, SUBPIXEL_BITS)
+    def polygon(self, xs: list[float], ys: list[float], colour) -> None:
+        scale, ox, oy = self._fixed_scale, self._offset_x, self._offset_y
+        vertices = zip(xs, ys, strict=True)
+        fixed = [(round(x * scale + ox), round(y * scale + oy)) for x, y in vertices]
+        cv2.fillConvexPoly(self.image, np.array(fixed, dtype=np.int32), colour, cv2.LINE_8,
+                           SUBPIXEL_BITS)
 
     def rectangle(self, rect: Rect, colour) -> None:
         if self.overlaps(rect.x0, rect.y0, rect.x1, rect.y1):
@@ -172,25 +171,25 @@ class _Canvas:
         self._set_origin(*origin)
         palette = self.palette
         np.copyto(self.image, self.background)
-        self.rectangle(geometry.goal_rect, palette.goal)
+        self.rectangle(geometry.drawn_goal_rect, palette.goal)
         fully_visible = []
         reach = _OBJECT_REACH
         for pose, shape, colour, index in zip(scene.objects, scene.object_shapes,
                                               scene.object_colours, scene.object_ids, strict=True):
             if not self.overlaps(pose.x - reach, pose.y - reach, pose.x + reach, pose.y + reach):
                 continue
-            points = polygon_points(OBJECT_SHAPES[shape], pose)
-            x0, y0, x1, y1 = _bounding_box(points)
+            xs, ys = placed_vertices(OBJECT_SHAPES[shape], pose)
+            x0, y0, x1, y1 = min(xs), min(ys), max(xs), max(ys)
             if self.overlaps(x0, y0, x1, y1):
-                self.polygon(points, palette.objects[colour])
+                self.polygon(xs, ys, palette.objects[colour])
             if box.contains(x0, y0, x1, y1):
                 fully_visible.append(index)
         reach = _DISTRACTOR_REACH
         for pose in scene.distractors:
             if self.overlaps(pose.x - reach, pose.y - reach, pose.x + reach, pose.y + reach):
-                self.polygon(polygon_points(DISTRACTOR_VERTICES, pose), palette.distractor)
+                self.polygon(*placed_vertices(DISTRACTOR_VERTICES, pose), palette.distractor)
         self.agent(scene.agent)
-        for wall in geometry.walls:
+        for wall in geometry.drawn_walls:
             self.rectangle(wall, palette.wall)
         return fully_visible
 

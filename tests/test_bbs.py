@@ -4,6 +4,7 @@ import hashlib
 import math
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import gymnasium
@@ -33,7 +34,7 @@ def layout(agent=(300.0, 350.0), objects=(), distractors=(), goal_y=None, agent_
 
 def simulation(spec, scale=1.0, odd_force_point=True):
     geometry = arena_geometry(scale)
-    return Simulation(geometry, parse_layout(spec, geometry.goal_y_range), odd_force_point)
+    return Simulation(geometry, parse_layout(spec, geometry), odd_force_point)
 
 
 def digest(arrays) -> str:
@@ -277,6 +278,7 @@ def test_layout_places_entities_exactly():
     ({"objects": []}, "at least one object"),
     ({"goal_y": 500.0, "objects": [square(200, 200)]}, "goal_y=500.0"),
     ({"objects": [{"position": (math.nan, 1.0), "shape": "square", "colour": "red"}]}, "finite"),
+    ({"agent": {"position": (900.0, 100.0)}}, r"\(900.0, 100.0\) lies outside the 800x700"),
 ])
 def test_bad_layout_is_rejected(bad, message):
     env = bbs.BringBackShapesEnv()
@@ -298,6 +300,15 @@ def test_variants_registry_and_task_names():
     custom = gymnasium.make("BringBackShapes-v0", num_objects=2, obs_size=32)
     assert custom.reset(seed=0)[0].shape == (32, 32, 3)
     assert len(custom.unwrapped.true_state()["object_poses"]) == 2
+
+
+def test_gymnasium_env_checker_passes_without_warnings():
+    from gymnasium.utils.env_checker import check_env
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(gymnasium.make("BringBackShapes-Basic-D2-v0").unwrapped, skip_render_check=True)
+        check_env(bbs.BringBackShapesEnv(render_mode="rgb_array"), skip_render_check=True)
 
 
 # ------------------------------------------------------------------------------------ options
@@ -480,6 +491,14 @@ def test_observation_colours_for_a_known_layout():
               (660, 350): (0, 130, 65), (425, 255): (205, 151, 50), (470, 300): (50, 50, 50)}
     for (x, y), colour in screen.items():
         assert tuple(arena[y, x]) == colour, (x, y)
+
+
+def test_full_arena_goal_pixels_match_the_original():
+    env = bbs.BringBackShapesEnv(render_mode="rgb_array")
+    env.reset(options={"layout": layout(agent=(200.0, 200.0), objects=[square(150, 500)])})
+    green = np.all(env.render() == (0, 130, 65), axis=-1)
+    rows, cols = np.flatnonzero(green[:, 600]), np.flatnonzero(green[350])
+    assert (rows.min(), rows.max(), cols.min(), cols.max()) == (239, 461, 575, 674)
 
 
 # ------------------------------------------------------------------------------------ vector
