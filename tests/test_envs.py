@@ -139,8 +139,10 @@ def test_eval_envs_use_other_seeds():
 
 
 def test_bad_config_values_are_named():
-    with pytest.raises(ValueError, match="0"):
+    with pytest.raises(ValueError, match="got 0, 108000, 64"):
         make_env(env_config("atari_pong", action_repeat=0), seed=0)
+    with pytest.raises(ValueError, match="grayscale=True"):
+        make_env(env_config("dmc_walker_walk", grayscale=True), seed=0)
 
 
 def test_env_spec_rejects_non_image_observations():

@@ -3,7 +3,7 @@
 The task (built here, for this test): a 64x64 RGB image shows a red dot (the agent, starting at
 the centre) and a green dot (the target, placed uniformly at random at every reset). A 2-D
 action in [-1, 1]^2 moves the agent by ``SPEED`` per step; the reward is the negative distance
-to the target, every step, for ``EPISODE`` steps. The target is only visible in the image, so
+to the target (times ``REWARD_SCALE``), every step, for ``EPISODE`` steps. The target is only visible in the image, so
 the policy must read the pixels. Scores over ``EVAL_EPISODES`` evaluation episodes are compared
 with a uniform random policy and with an oracle that moves straight to the target: the agent
 must close at least half of the gap between them.
@@ -31,7 +31,8 @@ from vsgjax.envs.wrappers import DefaultSeed
 from vsgjax.train import Trainer
 
 SIZE = 64
-DOT = 6  # dot side in pixels
+DOT = 12  # dot side in pixels
+REWARD_SCALE = 4.0  # reward = -REWARD_SCALE * distance
 SPEED = 0.12  # agent displacement per unit action, in arena units ([0, 1]^2)
 EPISODE = 20  # agent steps per episode
 EVAL_EPISODES = 10
@@ -70,7 +71,7 @@ class ReachEnv(gymnasium.Env):
     def step(self, action):
         self.agent = np.clip(self.agent + SPEED * np.clip(action, -1, 1), 0.0, 1.0)
         self.t += 1
-        reward = -float(np.linalg.norm(self.agent - self.target))
+        reward = -REWARD_SCALE * float(np.linalg.norm(self.agent - self.target))
         return self._image(), reward, False, self.t >= EPISODE, {}
 
     def _image(self) -> np.ndarray:
@@ -117,7 +118,7 @@ def oracle_action(env: ReachEnv, rng: np.random.Generator) -> np.ndarray:
 def test_oracle_beats_random_by_a_wide_margin():
     random_score = baseline_return(random_action, 200, SEED)
     oracle_score = baseline_return(oracle_action, 200, SEED)
-    assert oracle_score > random_score + 3.0, (oracle_score, random_score)
+    assert oracle_score > random_score + 3.0 * REWARD_SCALE, (oracle_score, random_score)
 
 
 def test_reach_images_show_both_dots():

@@ -132,9 +132,9 @@ class Agent:
 
         metrics = {f"wm/{name}": value for name, value in wm_metrics.items()}
         metrics.update(ac_metrics, **critic_metrics)
-        metrics.update({"wm/grad_norm": optax.global_norm(grads),
-                        "actor/grad_norm": optax.global_norm(actor_grads),
-                        "critic/grad_norm": optax.global_norm(critic_grads)})
+        metrics.update({"wm/grad_norm": optax.tree.norm(grads),
+                        "actor/grad_norm": optax.tree.norm(actor_grads),
+                        "critic/grad_norm": optax.tree.norm(critic_grads)})
         new_params = {"wm": wm_params, "actor": actor, "critic": critic,
                       "slow_critic": slow_critic}
         return AgentState(new_params, opt, state.step + 1), metrics

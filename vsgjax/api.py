@@ -44,8 +44,13 @@ def world_model_for(config: Config, params: dict, action_dim: int = 0) -> WorldM
 def init(config: Config, key: jax.Array, obs_shape: tuple[int, int, int] = (64, 64, 3),
          action_dim: int = 2) -> TrainState:
     """Fresh world-model parameters and optimizer state (``action_dim`` 2 = BringBackShapes)."""
-    params = WorldModel(config, tuple(obs_shape), action_dim).init(key)
-    opt_state = world_model_optimizer(config.wm).init(params)
+    return _init(WorldModel(config, tuple(obs_shape), action_dim), key)
+
+
+@functools.partial(jax.jit, static_argnames="model")
+def _init(model: WorldModel, key: jax.Array) -> TrainState:
+    params = model.init(key)
+    opt_state = world_model_optimizer(model.config.wm).init(params)
     return TrainState(params, opt_state, jnp.zeros((), jnp.int32))
 
 
@@ -61,7 +66,7 @@ def train_step(config: Config, state: TrainState, batch: dict, key: jax.Array):
     updates, opt_state = world_model_optimizer(config.wm).update(grads, state.opt_state,
                                                                  state.params)
     params = optax.apply_updates(state.params, updates)
-    metrics = dict(metrics, grad_norm=optax.global_norm(grads))
+    metrics = dict(metrics, grad_norm=optax.tree.norm(grads))
     return TrainState(params, opt_state, state.step + 1), metrics, posts
 
 

@@ -10,20 +10,22 @@ only through three callables, so this module does not depend on how the world mo
 
 TIMESTEP ALIGNMENT (one imagined trajectory, horizon H, H+1 states; t indexes states)::
 
-    t               0        1        2      ...    H-1       H
-    state           s_0 ---> s_1 ---> s_2    ...    s_H-1 --> s_H       s_0 = sg(posterior)
-    action          a_0      a_1      a_2    ...    a_H-1    (a_H)      a_t = π(sg(feat_t)); a_H unused
-    reward head     (r_0)    r_1      r_2    ...    r_H-1     r_H       r_t: reward for ARRIVING at s_t
-    discount head   (γ̂_0)    γ̂_1      γ̂_2    ...    γ̂_H-1     γ̂_H       γ̂_t = γ·P(s_t is not terminal)
-    slow value      v_0      v_1      v_2    ...    v_H-1     v_H       v_H bootstraps the return
-    λ-return        V_0      V_1      V_2    ...    V_H-1     -         H returns, t = 0..H-1
-    weight          w_0=c    w_1      w_2    ...    w_H-1     -         w_t = c·Π_{k=1..t} γ̂_k
+    t               0        1        2      ...   H-1       H
+    state           s_0 ---> s_1 ---> s_2    ...   s_H-1 --> s_H     s_0 = sg(posterior)
+    action          a_0      a_1      a_2    ...   a_H-1    (a_H)    a_t = π(sg(feat_t))
+    reward head    (r_0)     r_1      r_2    ...   r_H-1     r_H     r_t: for ARRIVING at s_t
+    discount head  (γ̂_0)     γ̂_1      γ̂_2    ...   γ̂_H-1     γ̂_H     γ̂_t = γ·P(s_t not terminal)
+    slow value      v_0      v_1      v_2    ...   v_H-1     v_H     v_H bootstraps
+    λ-return        V_0      V_1      V_2    ...   V_H-1     -       H returns, t = 0..H-1
+    weight          w_0=c    w_1      w_2    ...   w_H-1     -       w_t = c·Π_{k=1..t} γ̂_k
+    (parenthesised entries are computed but unused)
 
     V_t = r_{t+1} + γ̂_{t+1}·((1−λ)·v_{t+1} + λ·V_{t+1}),  with V_H := v_H
     i.e. lambda_returns(reward[1:], discount[1:], value[1:]) over t = 0..H-1 (r_0, γ̂_0 unused).
-    w = sg(c · cumprod([1, γ̂_1, ..., γ̂_{H-1}]))  (the spec's cumprod([1, γ̂_1..])), where
-    c = 1 − is_terminal of the start state from the replay batch (a terminal start state has no
-    decision to make, so it gets no weight: DreamerV2 uses the true first discount the same way).
+    w = sg(c · cumprod([1, γ̂_1, ..., γ̂_{H-1}]))  (the spec's cumprod([1, γ̂_1..])): w_t is the
+    predicted probability that s_t is still in the episode, times γ^t. c = 1 − is_terminal of the
+    start state from the replay batch: a terminal start state has no decision to make, so its
+    trajectory gets no weight (DreamerV2 likewise uses the replay's true first discount).
 
     critic:  v(sg(feat_t)) regresses sg(V_t) with weight w_t,               t = 0..H-1
     actor:   π(·|sg(feat_t)) that produced a_t, objective at t:             t = 0..H-1
@@ -44,7 +46,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax.scipy.special import ndtr, ndtri
+from jax.scipy.special import ndtri
 
 from vsgjax.config import BehaviourConfig
 from vsgjax.networks import MLP, normal_log_prob
@@ -79,41 +81,47 @@ class TruncNormalActions(NamedTuple):
     std: jax.Array
 
     def _bounds(self) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """(α, Φ(α), Z)."""
         alpha, beta = (-1.0 - self.mean) / self.std, (1.0 - self.mean) / self.std
-        return alpha, beta, ndtr(beta) - ndtr(alpha)
-
-    def _cdf(self, action: jax.Array) -> jax.Array:
-        alpha, _, normalizer = self._bounds()
-        return (ndtr((action - self.mean) / self.std) - ndtr(alpha)) / normalizer
+        low = _normal_cdf(alpha)
+        return alpha, low, _normal_cdf(beta) - low
 
     def sample(self, key: jax.Array) -> jax.Array:
-        alpha, _, normalizer = self._bounds()
-        uniform = jax.random.uniform(key, self.mean.shape)
-        level = jnp.clip(ndtr(alpha) + uniform * normalizer, TAIL, 1.0 - TAIL)
-        event = sg(self.mean + self.std * ndtri(level))
-        cdf = self._cdf(event)  # forward: `event`; gradient: −(∂F/∂θ) / p
-        event = event - (cdf - sg(cdf)) / sg(jnp.exp(self._log_density(event)))
+        _, low, normalizer = self._bounds()
+        level = low + jax.random.uniform(key, self.mean.shape) * normalizer
+        event = sg(self.mean + self.std * ndtri(jnp.clip(level, TAIL, 1.0 - TAIL)))
+        standard = (event - self.mean) / self.std
+        cdf = (_normal_cdf(standard) - low) / normalizer  # forward: `event`; grad: −(∂F/∂θ)/p
+        density = sg(_normal_pdf(standard) / (self.std * normalizer))
+        event = event - (cdf - sg(cdf)) / density
         clipped = jnp.clip(event, -1.0 + TRUNC_CLIP, 1.0 - TRUNC_CLIP)
         return event + sg(clipped - event)
 
     def mode(self) -> jax.Array:
         return self.mean
 
-    def _log_density(self, action: jax.Array) -> jax.Array:
-        """Per-dimension log density."""
-        normalizer = self._bounds()[2]
-        z = (action - self.mean) / self.std
-        return -0.5 * z * z - 0.5 * jnp.log(2.0 * jnp.pi) - jnp.log(self.std * normalizer)
-
     def log_prob(self, action: jax.Array) -> jax.Array:
-        return self._log_density(action).sum(-1)
+        normalizer = self._bounds()[2]
+        standard = (action - self.mean) / self.std
+        log_density = (-0.5 * standard * standard - 0.5 * jnp.log(2.0 * jnp.pi)
+                       - jnp.log(self.std * normalizer))
+        return log_density.sum(-1)
 
     def entropy(self) -> jax.Array:
-        alpha, beta, normalizer = self._bounds()
-        pdf = lambda z: jnp.exp(-0.5 * z * z) / jnp.sqrt(2.0 * jnp.pi)
+        alpha, _, normalizer = self._bounds()
+        beta = alpha + 2.0 / self.std
         entropy = (0.5 * jnp.log(2.0 * jnp.pi * jnp.e) + jnp.log(self.std * normalizer)
-                   + (alpha * pdf(alpha) - beta * pdf(beta)) / (2.0 * normalizer))
+                   + (alpha * _normal_pdf(alpha) - beta * _normal_pdf(beta)) / (2.0 * normalizer))
         return entropy.sum(-1)
+
+
+def _normal_cdf(x: jax.Array) -> jax.Array:
+    """Φ(x) through one erf (absolute accuracy is all the truncated Normal above needs)."""
+    return 0.5 * (1.0 + jax.lax.erf(x / jnp.sqrt(2.0)))
+
+
+def _normal_pdf(x: jax.Array) -> jax.Array:
+    return jnp.exp(-0.5 * x * x) / jnp.sqrt(2.0 * jnp.pi)
 
 
 class OneHotActions(NamedTuple):

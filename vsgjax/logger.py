@@ -11,6 +11,7 @@ import json
 import math
 import os
 import time
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -83,7 +84,9 @@ class Logger:
         if frames.shape[-1] == 1:
             frames = np.repeat(frames, 3, axis=-1)
         path = self.video_dir / f"{name}_{int(step):09d}.mp4"
-        imageio.mimwrite(path, list(frames), fps=fps, macro_block_size=16)
+        with warnings.catch_warnings():  # ffmpeg runs via fork+exec, which is safe under JAX
+            warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+            imageio.mimwrite(path, list(frames), fps=fps, macro_block_size=16)
         self._writer.add_image(name, frames[len(frames) // 2], int(step), dataformats="HWC")
         return path
 
@@ -96,6 +99,7 @@ class Progress:
     """A tqdm bar over env steps showing steps/s, ETA, the latest losses and the latest return."""
 
     def __init__(self, total: int, initial: int, enabled: bool = True):
+        self.enabled = enabled
         self._bar = tqdm(total=total, initial=initial, unit="step", dynamic_ncols=True,
                          disable=not enabled, smoothing=0.05, mininterval=1.0)
         self._fields: dict[str, str] = {}

@@ -185,11 +185,14 @@ class Trainer:
             self.key = jax.random.fold_in(self.key, 1)
         else:
             self._load(restored)
+        # Episodes on disk are data even without a checkpoint (a run killed before its first).
+        for episode in self.store.load(limit_steps=train.replay_capacity):
+            self.replay.add_episode(episode)
         self._write_config()
-        self.logger = Logger(self.logdir, resume_step=self.env_steps if self.resumed else None)
-        if self.resumed:
-            truncate_metrics(self.logdir / "eval_episodes.jsonl", self.env_steps)
-            self._write_scores()
+        # Records an interrupted run wrote after the restored step are dropped.
+        self.logger = Logger(self.logdir, resume_step=self.env_steps)
+        truncate_metrics(self.logdir / "eval_episodes.jsonl", self.env_steps)
+        self._write_scores()
         envs = make_envs(config.env, env_seed(train.seed, self.counters.agent_steps),
                          config.env.num_envs, eval=False)
         chunk = max(1, train.train_every // config.env.num_envs)
@@ -227,8 +230,6 @@ class Trainer:
         self.counters = Counters(**meta["counters"])
         self.replay.rng = checkpoint.rng_from_state(meta["replay_rng"])
         self.scores = meta["scores"]
-        for episode in self.store.load(limit_steps=self.config.train.replay_capacity):
-            self.replay.add_episode(episode)
         self.checkpoint_path = restored.path
 
     @property
@@ -238,7 +239,9 @@ class Trainer:
     def describe(self) -> str:
         """Whether this run resumes, and from where."""
         if not self.resumed:
-            return "starting a new run"
+            found = f" ({self.replay.num_episodes} episodes already in episodes/)" if \
+                self.replay.num_episodes else ""
+            return f"starting a new run{found}"
         return (f"resuming from {self.checkpoint_path.name}: env step {self.env_steps}, update "
                 f"{self.counters.updates}, replay {self.replay.num_steps} steps in "
                 f"{self.replay.num_episodes} episodes")
@@ -332,9 +335,15 @@ class Trainer:
         if self._window_episodes:
             record["return"] = float(np.mean([e["return"] for e in self._window_episodes]))
         self.logger.scalars(self.env_steps, record, prefix="train")
-        shown = {"loss": "wm/loss", "img": "wm/image_loss", "actor": "actor/loss",
+        shown = {"ret": "return", "loss": "wm/loss", "img": "wm/image_loss",
+                 "rew": "wm/reward_loss", "kl": "wm/kl", "actor": "actor/loss",
                  "critic": "critic/loss"}
-        self.progress.show({short: record[k] for short, k in shown.items() if k in record})
+        values = {short: record[k] for short, k in shown.items() if k in record}
+        self.progress.show(values)
+        if not self.progress.enabled:  # a line per log instead of the bar
+            self.progress.write(f"train env step {self.env_steps:>9}: updates "
+                                f"{self.counters.updates}, {record['env_steps_per_s']:.1f} "
+                                "steps/s, " + ", ".join(f"{k} {v:.3g}" for k, v in values.items()))
         self._window, self._window_episodes = [], []
         self._last_log_time, self._last_log_step = now, self.env_steps
 

@@ -99,19 +99,24 @@ class WorldModel:
     # --- parameters --------------------------------------------------------------------------
 
     def init(self, key: jax.Array) -> dict:
-        """Parameters ``{encoder, dynamics, decoder, reward[, discount]}`` (plain nested dicts)."""
+        """Parameters ``{encoder, dynamics, decoder, reward[, discount]}`` (plain nested dicts).
+
+        Pure; wrap in ``jax.jit`` (as :func:`vsgjax.api.init` does) to compile the many
+        initialisers into one program instead of running them op by op.
+        """
         k_enc, k_dyn, k_dec, k_rew, k_dis = jax.random.split(key, 5)
-        image = jnp.zeros(self.obs_shape, jnp.float32)
-        feat = jnp.zeros((self.dynamics.feat_dim,), jnp.float32)
+        # lazy_init: only the parameter initialisers run, not the modules' forward passes.
+        image = jax.ShapeDtypeStruct(self.obs_shape, jnp.float32)
+        feat = jax.ShapeDtypeStruct((self.dynamics.feat_dim,), jnp.float32)
         params = {
-            "encoder": self.encoder.init(k_enc, image)["params"],
+            "encoder": self.encoder.lazy_init(k_enc, image)["params"],
             "dynamics": self.dynamics.init(k_dyn, embed_dim(self.config.wm.cnn_depth),
                                            self.action_dim),
-            "decoder": self.decoder.init(k_dec, feat)["params"],
-            "reward": self.reward_head.init(k_rew, feat)["params"],
+            "decoder": self.decoder.lazy_init(k_dec, feat)["params"],
+            "reward": self.reward_head.lazy_init(k_rew, feat)["params"],
         }
         if self.config.wm.discount_head:
-            params["discount"] = self.discount_head.init(k_dis, feat)["params"]
+            params["discount"] = self.discount_head.lazy_init(k_dis, feat)["params"]
         return params
 
     # --- pieces the actor-critic and notebooks use (any leading batch dims) -----------------

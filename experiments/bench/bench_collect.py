@@ -19,6 +19,7 @@ Run: ``python -m experiments.bench.bench_collect``.
 from __future__ import annotations
 
 import functools
+import os
 import time
 from pathlib import Path
 
@@ -34,7 +35,8 @@ from vsgjax.envs.wrappers import DefaultSeed
 
 RESULTS = Path(__file__).parent / "results" / "collect.md"
 HIDDEN = 256
-REPEATS = 7
+REPEATS = 15
+KEY = jax.random.PRNGKey(0)
 TRAIN_CHUNK = 5  # the training loop's chunk: train_every agent steps
 
 
@@ -68,78 +70,89 @@ def standin_params(obs_shape, action_dim, key):
             for (name, shape), k in zip(shapes.items(), keys, strict=True)}
 
 
-def median_time(fn, repeats: int = REPEATS) -> np.ndarray:
-    """Median (wall seconds, CPU seconds of this process) of ``fn()``.
-
-    CPU time is robust to other processes competing for the cores (wall time is not): it
-    counts what this process itself spends, in every thread. Worker processes are excluded.
-    """
+def median_time(fn, repeats: int = REPEATS) -> float:
+    """Median wall seconds of ``fn()``."""
     times = []
     for _ in range(repeats):
-        wall, cpu = time.perf_counter(), time.process_time()
+        start = time.perf_counter()
         fn()
-        times.append((time.perf_counter() - wall, time.process_time() - cpu))
-    return np.median(np.array(times), axis=0)
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
 
 
-def time_policy(policy, params, carry, obs, chunk: int) -> np.ndarray:
-    """(wall, CPU) seconds per step of the policy alone, scanned over a chunk on a fixed obs."""
+def interleaved_times(fns: dict, repeats: int) -> dict[str, np.ndarray]:
+    """Per name, an array [repeats, 2] of (wall, CPU) seconds; the fns run in turn, so that
+    load from other processes hits them alike. CPU time counts this process's threads only."""
+    times = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            wall, cpu = time.perf_counter(), time.process_time()
+            fn()
+            times[name].append((time.perf_counter() - wall, time.process_time() - cpu))
+    return {name: np.array(values) for name, values in times.items()}
+
+
+def policy_scan(policy, chunk: int):
+    """The policy alone, scanned over a chunk of given observations (no env, no callback).
+
+    Each step gets its own image, so XLA cannot hoist the image encoder out of the loop."""
 
     @jax.jit
-    def scan(params, carry, obs, key):
-        def body(carry, step_key):
-            carry, action = policy(params, carry, obs, step_key)
+    def scan(params, carry, obs, images, key):
+        def body(carry, inputs):
+            image, step_key = inputs
+            carry, action = policy(params, carry, {**obs, "image": image}, step_key)
             return carry, action
-        return jax.lax.scan(body, carry, jax.random.split(key, chunk))
+        return jax.lax.scan(body, carry, (images, jax.random.split(key, chunk)))
 
-    jax.block_until_ready(scan(params, carry, obs, jax.random.PRNGKey(0)))
-    return median_time(lambda: jax.block_until_ready(
-        scan(params, carry, obs, jax.random.PRNGKey(1)))) / chunk
+    return scan
 
 
-def time_env(envs: EnvBatch, chunk: int) -> np.ndarray:
-    """(wall, CPU) seconds per step of the host-side batched env step alone."""
+def chunk_fns(envs: EnvBatch, policy, params, carry, chunk: int) -> tuple[dict, dict]:
+    """One-chunk closures for: policy alone, env alone, scan driver, loop driver; and the
+    seconds of each driver's first call (compilation included)."""
+    obs = {k: jnp.asarray(v) for k, v in envs.reset().items()}
+    scan = policy_scan(policy, chunk)
     rng = np.random.default_rng(0)
+    images = jnp.asarray(rng.integers(0, 256, (chunk, *obs["image"].shape), np.uint8))
     actions = rng.uniform(-1, 1, (chunk, envs.num_envs, envs.spec.action_dim)).astype(np.float32)
-    envs.reset()
 
-    def steps():
+    def env_steps():
         for action in actions:
             envs.step(action)
 
-    steps()
-    return median_time(steps) / chunk
-
-
-def time_collect(envs: EnvBatch, mode: str, chunk: int, policy, params,
-                 carry) -> tuple[np.ndarray, float]:
-    """((wall, CPU) seconds per step of Collector.run, seconds of the first call incl. compile)."""
-    collector = Collector(envs, policy, chunk=chunk, mode=mode)
-    start = time.perf_counter()
-    carry, _ = collector.run(params, carry, jax.random.PRNGKey(0))
-    first = time.perf_counter() - start
-    keys = iter(jax.random.split(jax.random.PRNGKey(1), REPEATS))
-    per_step = median_time(lambda: collector.run(params, carry, next(keys))) / chunk
-    return per_step, first
+    fns = {"policy": lambda: jax.block_until_ready(scan(params, carry, obs, images, KEY)),
+           "env": env_steps}
+    first = {}
+    for mode in ("scan", "loop"):
+        collector = Collector(envs, policy, chunk=chunk, mode=mode)
+        start = time.perf_counter()
+        collector.run(params, carry, KEY)
+        first[mode] = time.perf_counter() - start
+        fns[mode] = functools.partial(collector.run, params, carry, KEY)
+    fns["policy"]()
+    return fns, first
 
 
 def boundary_rows(name: str, make_batch, chunk: int, policy_name: str = "stand-in",
                   num_envs_list=(1, 2)) -> list[str]:
+    """Rows: per driver, median wall, min wall and median CPU microseconds per agent step of
+    collect, env, policy and the boundary (collect - env - policy)."""
     rows = []
     for num_envs in num_envs_list:
         envs = make_batch(num_envs)
         policy, params, carry = make_policy(policy_name, envs)
-        obs = {k: jnp.asarray(v) for k, v in envs.reset().items()}
-        policy_t = time_policy(policy, params, carry, obs, chunk)
-        env_t = time_env(envs, chunk)
+        fns, first = chunk_fns(envs, policy, params, carry, chunk)
+        times = {k: v / chunk * 1e6 for k, v in interleaved_times(fns, REPEATS).items()}
+        stats = {k: (np.median(v[:, 0]), v[:, 0].min(), np.median(v[:, 1]))
+                 for k, v in times.items()}
         for mode in ("scan", "loop"):
-            collect_t, first_s = time_collect(envs, mode, chunk, policy, params, carry)
-            boundary = collect_t - env_t - policy_t
+            boundary = np.subtract(np.subtract(stats[mode], stats["env"]), stats["policy"])
+            cells = [stats[mode], stats["env"], stats["policy"]]
             rows.append(f"| {name} | {policy_name} | {num_envs} | {chunk} | {mode} | "
-                        + " | ".join(f"{w * 1e6:.0f} / {c * 1e6:.0f}" for w, c in
-                                     (collect_t, env_t, policy_t))
-                        + f" | **{boundary[0] * 1e6:.0f} / {boundary[1] * 1e6:.0f}** | "
-                        f"{first_s:.2f} |")
+                        + " | ".join("{:.0f} / {:.0f} / {:.0f}".format(*c) for c in cells)
+                        + " | **{:.0f} / {:.0f} / {:.0f}** | ".format(*boundary)
+                        + f"{first[mode]:.2f} |")
             print(rows[-1], flush=True)
         envs.close()
     return rows
@@ -176,9 +189,13 @@ def bare_env_rate(task: str, steps: int) -> tuple[float, float]:
                 env.reset()
 
     run()
-    seconds = median_time(run, repeats=3)[0]
+    seconds = median_time(run, repeats=3)
     env.close()
     return steps / seconds, steps * env_cfg.action_repeat / seconds
+
+
+def load_average() -> str:
+    return " ".join(f"{x:.1f}" for x in os.getloadavg()) + f" ({os.cpu_count()} cores)"
 
 
 def main() -> None:
@@ -190,11 +207,13 @@ def main() -> None:
         agent_rate, env_rate = bare_env_rate(task, steps)
         lines.append(f"| {task} | {agent_rate:.0f} | {env_rate:.0f} |")
         print(lines[-1], flush=True)
-    lines += ["", f"Per agent step, microseconds as **wall / CPU** (CPU: this process, all "
-              f"threads; robust to other load on the machine), median of {REPEATS} chunks, "
-              "compilation excluded (`first call` includes it). `boundary = collect - env - "
-              "policy` is the cost of crossing between JAX and Python. N = 2 runs the envs in "
-              "worker processes (their CPU time is not counted).", "",
+    lines += ["", f"Per agent step, microseconds: **median wall / min wall / median CPU** over "
+              f"{REPEATS} chunks, the four measurements interleaved (CPU: this process's "
+              "threads, not env worker processes). Compilation excluded (`first call` includes "
+              "it). `boundary = collect - env - policy` is the cost of crossing between JAX and "
+              "Python; `policy` is the policy scanned alone over a chunk of stored observations. "
+              f"N = 2 runs the envs in worker processes. Load average before: {load_average()}.",
+              "",
               "| env | policy | N | chunk | driver | collect | env | policy | boundary "
               "| first call (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
     lines += boundary_rows("fake", fake_batch, chunk)
@@ -202,6 +221,7 @@ def main() -> None:
     lines += boundary_rows("fake", fake_batch, chunk, "vsg-small", (1,))
     bbs_cfg = make_config("bbs_basic", size="debug").env
     lines += boundary_rows("bbs_basic", lambda n: make_env_batch(bbs_cfg, 0, n), chunk)
+    lines += ["", f"Load average after: {load_average()}."]
     text = "\n".join(lines) + "\n"
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(text)

@@ -92,6 +92,9 @@ def make_env(env_cfg: EnvConfig, seed: int, *, eval: bool = False) -> gymnasium.
         raise ValueError(f"action_repeat, time_limit and image_size must be >= 1, got "
                          f"{env_cfg.action_repeat}, {env_cfg.time_limit}, {env_cfg.image_size}")
     family, args = parse_task(env_cfg.task)
+    if family != "atari" and (env_cfg.grayscale or env_cfg.sticky):
+        raise ValueError(f"grayscale={env_cfg.grayscale} and sticky={env_cfg.sticky} are Atari "
+                         f"options; task {env_cfg.task!r} needs grayscale=False and sticky=0")
     seed = seed + EVAL_SEED_OFFSET if eval else seed
     env = _BUILDERS[family](args, env_cfg, seed)
     env = _normalize_actions(env)

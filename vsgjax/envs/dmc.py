@@ -8,7 +8,9 @@ steps (physics control steps, before action repeat); it terminates only where dm
 a zero discount, which no suite task does.
 
 Rendering runs on the CPU through OSMesa when no display is available (``MUJOCO_GL=osmesa``,
-set here by default before dm_control is imported; ``make`` sets it too).
+set here by default before dm_control is imported; ``make`` sets it too). There, drawing the
+2048x2048 shadow map dominates the cost of a 64x64 frame; a 512 map halves the render time and
+changes the image by 0.02 grey levels on average (measured on walker), so it is the default.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import gymnasium  # noqa: E402
 import numpy as np  # noqa: E402
 
 CAMERA_BY_DOMAIN = {"quadruped": 2}
+SHADOW_MAP_SIZE = 512  # MuJoCo's default (2048 in the suite's models) costs 2x on a CPU renderer
 
 
 def all_tasks() -> list[tuple[str, str]]:
@@ -42,6 +45,7 @@ class DMCEnv(gymnasium.Env):
         from dm_control import suite
 
         self._env = suite.load(domain, task, task_kwargs={"random": seed})
+        self._env.physics.model.vis.quality.shadowsize = SHADOW_MAP_SIZE
         self._repeat = action_repeat
         self._time_limit = time_limit
         self._size = size
