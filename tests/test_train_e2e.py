@@ -39,7 +39,11 @@ RUN_TIMEOUT = 900
 @pytest.fixture(scope="module")
 def child_env(tmp_path_factory) -> dict:
     cache = tmp_path_factory.mktemp("xla_cache")
+    # Single-threaded Eigen inside XLA: multi-threaded CPU contractions may split reductions
+    # differently from run to run (last-bit differences), which the determinism test would see.
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_multi_thread_eigen=false".strip()
     return dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=str(cache),
+                XLA_FLAGS=flags,
                 JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", MUJOCO_GL="osmesa",
                 PYOPENGL_PLATFORM="osmesa", PYTHONWARNINGS="default")
 

@@ -56,7 +56,7 @@ def vsg_loss(vsg):
 # --- networks -------------------------------------------------------------------------------
 
 def _output_shape(module, x):
-    variables = module.lazy_init(jax.random.PRNGKey(0), x)
+    variables = jax.eval_shape(module.init, jax.random.PRNGKey(0), x)
     return jax.eval_shape(module.apply, variables, x).shape
 
 
@@ -242,11 +242,11 @@ def test_loss_finite_at_larger_sizes(name, size):
 def test_heads_without_discount_and_with_tanh_reward():
     config = make_config("atari_pong", "dreamerv2", "debug", ["wm.discount_head=false"])
     model = WorldModel(config, obs_shape=(64, 64, 1), action_dim=4)
-    params = jax.jit(model.init)(jax.random.PRNGKey(0))
+    params = jax.eval_shape(model.init, jax.random.PRNGKey(0))
     assert "discount" not in params and config.wm.reward_tanh
     feat = jnp.zeros((5, model.dynamics.feat_dim))
     np.testing.assert_array_equal(model.discount_prob(params, feat), np.ones(5))
-    assert model.decode(params, feat).shape == (5, 64, 64, 1)
+    assert jax.eval_shape(model.decode, params, feat).shape == (5, 64, 64, 1)
     batch = random_batch(3, 1, 3, obs_shape=(64, 64, 1), action_dim=4)
     _, (metrics, _) = jax.eval_shape(model.loss, params, batch, jax.random.PRNGKey(0))
     assert "discount_loss" not in metrics and "reward_loss" in metrics

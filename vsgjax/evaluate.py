@@ -60,15 +60,6 @@ def restore_latest(ckpt_dir: Path, agent: Agent, key: jax.Array) -> checkpoint.C
     return checkpoint.restore(ckpt_dir, target)
 
 
-def restart(collector: Collector) -> None:
-    """Make ``collector``'s next ``run`` reset its envs, so episodes start fresh.
-
-    Adapter: ``Collector`` resets its envs only before its first chunk and has no public way
-    to start over; it re-resets when its pending observation is cleared.
-    """
-    collector._obs = None
-
-
 class Evaluator:
     """Runs whole evaluation episodes with the actor's mode in dedicated envs."""
 
@@ -86,7 +77,7 @@ class Evaluator:
         if episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {episodes}")
         self._finished = []
-        restart(self._collector)
+        self._collector.reset()
         carry = self.agent.initial_carry(self.envs.num_envs)
         inputs = (params, jnp.asarray(False))
         while len(self._finished) < episodes:

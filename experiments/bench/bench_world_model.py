@@ -1,0 +1,291 @@
+"""World-model update time, compile time, memory, FLOP rate; imagination throughput.
+
+Each configuration runs in its own subprocess (so peak RSS is per configuration)::
+
+    python -m experiments.bench.bench_world_model                 # everything (~15 min, 2 cores)
+    python -m experiments.bench.bench_world_model --sizes small   # skip the paper size
+
+Measured, at batch 16 x length 50 with 64x64x3 images (BBS presets):
+
+* one jitted world-model update (forward, backward, AdamW): median wall time over ``--updates``
+  calls after compilation; the compile time; XLA's buffer sizes and the process's peak RSS;
+* its FLOPs counted from the jaxpr (:mod:`experiments.bench.flops`: matmuls and convolutions,
+  scan bodies multiplied by their length) next to XLA's ``cost_analysis()`` figure, which
+  counts each scan body once; the FLOP rate achieved as a fraction of a large float32 matmul's;
+* a breakdown of the update into encoder / dynamics / decoder+heads (each forward+backward),
+  with the rate each part reaches: the profile that says where time goes;
+* ``imagine`` throughput (start states x horizon per second) from 800 start states, H = 15.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).parent / "results" / "world_model.md"
+MODELS = ("vsg", "svsg", "dreamerv2")
+BATCH, LENGTH, START_STATES, HORIZON = 16, 50, 800, 15
+
+
+def _timed(fn, *args, repeats: int) -> list[float]:
+    import jax
+
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return times
+
+
+def matmul_rate(size: int = 2048, repeats: int = 10) -> float:
+    """FLOP/s of a ``size``^2 float32 matmul in JAX (median of ``repeats``)."""
+    import jax
+    import jax.numpy as jnp
+
+    a = jax.random.normal(jax.random.PRNGKey(0), (size, size), jnp.float32)
+    matmul = jax.jit(jnp.matmul)
+    jax.block_until_ready(matmul(a, a))
+    return 2 * size**3 / statistics.median(_timed(matmul, a, a, repeats=repeats))
+
+
+def _batch(config, seed: int = 0) -> dict:
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    is_first = np.zeros((BATCH, LENGTH), bool)
+    is_first[:, 0] = True
+    return {
+        "image": rng.integers(0, 256, (BATCH, LENGTH, 64, 64, 3), dtype=np.uint8),
+        "action": rng.uniform(-1, 1, (BATCH, LENGTH, 2)).astype(np.float32),
+        "reward": rng.normal(size=(BATCH, LENGTH)).astype(np.float32),
+        "is_first": is_first,
+        "is_terminal": np.zeros((BATCH, LENGTH), bool),
+    }
+
+
+def _config(model: str, size: str):
+    from vsgjax.config import make_config
+
+    return make_config("bbs_basic", model, size,
+                       [f"train.batch={BATCH}", f"train.length={LENGTH}"])
+
+
+def measure_update(model: str, size: str, updates: int) -> dict:
+    """Compile and time the world-model update of one configuration (run in a subprocess)."""
+    import jax
+
+    from experiments.bench.flops import count_flops
+    from vsgjax import api
+
+    config = _config(model, size)
+    state = api.init(config, jax.random.PRNGKey(0))
+    batch = _batch(config)
+    key = jax.random.PRNGKey(1)
+    start = time.perf_counter()
+    compiled = api.train_step.lower(config, state, batch, key).compile()
+    compile_s = time.perf_counter() - start
+    memory = compiled.memory_analysis()
+    cost = compiled.cost_analysis()
+    cost = cost[0] if isinstance(cost, list) else cost
+    flops = count_flops(lambda s, b, k: api.train_step(config, s, b, k), state, batch, key)
+    times = []
+    for i in range(updates):
+        start = time.perf_counter()
+        state, metrics, _ = compiled(state, batch, jax.random.PRNGKey(i))
+        jax.block_until_ready(state)
+        times.append(time.perf_counter() - start)
+    return {
+        "model": model, "size": size, "params": sum(x.size for x in jax.tree.leaves(state.params)),
+        "compile_s": compile_s, "update_s": statistics.median(times),
+        "update_min_s": min(times), "flops": flops, "xla_flops": cost.get("flops", float("nan")),
+        "temp_bytes": memory.temp_size_in_bytes,
+        "arg_bytes": memory.argument_size_in_bytes, "out_bytes": memory.output_size_in_bytes,
+        "peak_rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+        "loss": float(metrics["loss"]),
+    }
+
+
+def measure_breakdown(model: str, size: str, repeats: int) -> list[dict]:
+    """Forward+backward time and FLOPs of the update's parts (the profile of one update)."""
+    import jax
+    import jax.numpy as jnp
+
+    from experiments.bench.flops import count_flops
+    from vsgjax import api
+    from vsgjax.networks import image_to_float, normal_log_prob
+    from vsgjax.world_model import WorldModel
+
+    config = _config(model, size)
+    wm = WorldModel(config)
+    params = api.init(config, jax.random.PRNGKey(0)).params
+    batch = _batch(config)
+    images = batch["image"].reshape(BATCH * LENGTH, 64, 64, 3)
+    embeds = wm.encode(params, images).reshape(BATCH, LENGTH, -1)
+    keys = jax.random.split(jax.random.PRNGKey(1), BATCH)
+    feats = jnp.zeros((BATCH * LENGTH, wm.dynamics.feat_dim))
+    dyn = wm.dynamics
+
+    def encoder(p):
+        return jnp.square(wm.encode(p, images)).mean()
+
+    def dynamics(p):
+        def one(embed, action, first, key):
+            posts, priors = dyn.observe(p["dynamics"], embed, action, first, key)
+            return jax.vmap(dyn.kl)(posts, priors).sum() + jax.vmap(dyn.feat)(posts).sum()
+        return jax.vmap(one)(embeds, batch["action"], batch["is_first"], keys).mean()
+
+    def decoder_and_heads(p):
+        target = image_to_float(images)
+        image = normal_log_prob(wm.decode(p, feats), target, event_dims=3).mean()
+        return image + wm.reward_mean(p, feats).mean() + wm.discount_logits(p, feats).mean()
+
+    rows = []
+    for name, fn in (("encoder", encoder), ("dynamics (observe scan)", dynamics),
+                     ("decoder + heads", decoder_and_heads)):
+        grad = jax.jit(jax.grad(fn))
+        jax.block_until_ready(grad(params))
+        seconds = statistics.median(_timed(grad, params, repeats=repeats))
+        rows.append({"part": name, "seconds": seconds, "flops": count_flops(jax.grad(fn), params)})
+    return rows
+
+
+def measure_imagine(model: str, size: str, repeats: int) -> dict:
+    """Latent imagination (the actor-critic's rollout) and ``api.imagine`` with decoding."""
+    import jax
+    import jax.numpy as jnp
+
+    from vsgjax import api
+    from vsgjax.world_model import WorldModel
+
+    config = _config(model, size)
+    wm = WorldModel(config)
+    params = api.init(config, jax.random.PRNGKey(0)).params
+    dyn = wm.dynamics
+    start = jax.tree.map(lambda x: jnp.broadcast_to(x, (START_STATES,) + x.shape), dyn.initial())
+    keys = jax.random.split(jax.random.PRNGKey(2), START_STATES)
+
+    def policy(feat, key):
+        return jnp.tanh(feat[:2])
+
+    latent = jax.jit(jax.vmap(lambda s, k: dyn.imagine(params["dynamics"], policy, s, HORIZON,
+                                                       k)[0]))
+    jax.block_until_ready(latent(start, keys))
+    latent_s = statistics.median(_timed(latent, start, keys, repeats=repeats))
+
+    def decoded(s, k):
+        return api.imagine(params, s, HORIZON, config=config, key=k, action_dim=2)["images"]
+
+    jax.block_until_ready(decoded(start, keys[0]))
+    decoded_s = statistics.median(_timed(decoded, start, keys[0], repeats=max(1, repeats // 3)))
+    steps = START_STATES * HORIZON
+    return {"model": model, "size": size, "latent_steps_per_s": steps / latent_s,
+            "decoded_steps_per_s": steps / decoded_s}
+
+
+def _run_child(*args: str) -> dict | list:
+    """Run this module with ``args`` in a fresh process; return its JSON answer."""
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    out = subprocess.run([sys.executable, "-m", "experiments.bench.bench_world_model", *args],
+                         capture_output=True, text=True, env=env, cwd=root, check=False)
+    if out.returncode != 0:
+        raise RuntimeError(f"bench child {args} failed:\n{out.stderr[-3000:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _mib(n: float) -> str:
+    return f"{n / 2**20:,.0f}"
+
+
+def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: list[dict],
+           load: tuple[float, float, float], args) -> str:
+    lines = [
+        "## World model (CORE-WM)",
+        "",
+        f"Update = forward + backward + AdamW of the world-model loss, batch {BATCH} x length "
+        f"{LENGTH}, 64x64x3 images, BBS presets, float32. Median of {args.updates} updates after "
+        f"compilation. Load average when the run started: {load[0]:.1f} / {load[1]:.1f} / "
+        f"{load[2]:.1f} (other processes share these cores: a load above the core count slows "
+        "every figure).",
+        "",
+        f"Reference: a 2048x2048 float32 matmul in JAX reaches **{rate / 1e9:.1f} GFLOP/s**.",
+        "",
+        "FLOPs = matmul + convolution FLOPs of the update counted from its jaxpr, every scan "
+        "body multiplied by its length, transposed convolutions counted without the "
+        "multiplications by inserted zeros. `XLA` = `compiled.cost_analysis()['flops']`, which "
+        "counts each scan body once (and includes elementwise work).",
+        "",
+        "| model | size | params | update (s) | compile (s) | GFLOP / update | XLA GFLOP | "
+        "GFLOP/s | % of matmul | XLA temp MiB | peak RSS MiB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in updates:
+        achieved = r["flops"] / r["update_s"]
+        lines.append(
+            f"| {r['model']} | {r['size']} | {r['params'] / 1e6:.1f}M | {r['update_s']:.3f} | "
+            f"{r['compile_s']:.1f} | {r['flops'] / 1e9:.1f} | {r['xla_flops'] / 1e9:.1f} | "
+            f"{achieved / 1e9:.1f} | {100 * achieved / rate:.0f}% | {_mib(r['temp_bytes'])} | "
+            f"{_mib(r['peak_rss'])} |")
+    if breakdown:
+        lines += ["", f"Where the time goes ({args.profile_model}, {args.profile_size}; each part "
+                  "forward + backward alone, median):", "",
+                  "| part | seconds | GFLOP | GFLOP/s | % of matmul |", "|---|---|---|---|---|"]
+        for r in breakdown:
+            achieved = r["flops"] / r["seconds"]
+            lines.append(f"| {r['part']} | {r['seconds']:.3f} | {r['flops'] / 1e9:.1f} | "
+                         f"{achieved / 1e9:.1f} | {100 * achieved / rate:.0f}% |")
+    if imagine:
+        lines += ["", f"Imagination from {START_STATES} start states, horizon {HORIZON} "
+                  "(start states x horizon per second): latent rollout under a policy (what the "
+                  "actor-critic runs) and `vsgjax.imagine` including decoding every frame.", "",
+                  "| model | size | latent steps/s | decoded steps/s |", "|---|---|---|---|"]
+        for r in imagine:
+            lines.append(f"| {r['model']} | {r['size']} | {r['latent_steps_per_s']:,.0f} | "
+                         f"{r['decoded_steps_per_s']:,.0f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", nargs="+", default=["small", "paper"])
+    parser.add_argument("--models", nargs="+", default=list(MODELS))
+    parser.add_argument("--updates", type=int, default=10)
+    parser.add_argument("--profile-model", default="vsg")
+    parser.add_argument("--profile-size", default="paper")
+    parser.add_argument("--no-profile", action="store_true")
+    parser.add_argument("--imagine-size", default="paper")
+    parser.add_argument("--no-imagine", action="store_true")
+    parser.add_argument("--child", nargs=3, metavar=("KIND", "MODEL", "SIZE"), help=argparse.SUPPRESS)
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    if args.child:
+        kind, model, size = args.child
+        jobs = {"update": lambda: measure_update(model, size, args.updates),
+                "breakdown": lambda: measure_breakdown(model, size, max(3, args.updates // 2)),
+                "imagine": lambda: measure_imagine(model, size, 3)}
+        print(json.dumps(jobs[kind]()))
+        return
+    load = os.getloadavg()
+    rate = matmul_rate()
+    updates = [_run_child("--child", "update", m, s, "--updates", str(args.updates))
+               for s in args.sizes for m in args.models]
+    breakdown = [] if args.no_profile else _run_child(
+        "--child", "breakdown", args.profile_model, args.profile_size,
+        "--updates", str(args.updates))
+    imagine = [] if args.no_imagine else [
+        _run_child("--child", "imagine", m, args.imagine_size) for m in args.models]
+    text = report(rate, updates, breakdown, imagine, load, args)
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
