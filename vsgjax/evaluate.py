@@ -151,7 +151,7 @@ def evaluate_logdir(logdir: Path, episodes: int | None = None, seed: int | None 
         infos, _ = evaluator.run(restored.tree["agent"].params, episodes, key)
     finally:
         evaluator.close()
-    return infos, int(restored.meta["counters"]["env_steps"])
+    return infos, restored.step  # checkpoints are numbered by env step
 
 
 def main(argv: list[str] | None = None) -> int:
