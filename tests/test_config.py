@@ -25,7 +25,8 @@ from vsgjax.config import (
         (lambda: make_config(overrides=["wm.kl_scale=abc"]), "'abc'", ("float",)),
         (lambda: make_config(overrides=["model.deter=1.5"]), "'1.5'", ("int",)),
         (lambda: make_config(overrides=["wm.kl_masked=maybe"]), "'maybe'", ("bool",)),
-        (lambda: make_config(task="mujoco_cheetah"), "'mujoco_cheetah'", ("bbs_", "dmc_", "atari_")),
+        (lambda: make_config(task="mujoco_cheetah"), "'mujoco_cheetah'",
+         ("bbs_", "dmc_", "atari_")),
     ],
 )
 def test_errors_name_the_bad_value_and_list_valid_ones(call, named, listed):

@@ -1,6 +1,7 @@
 """World model: networks, the KL-balanced / masked / free-nats loss, vmap, determinism, sizes."""
 
 import distrax
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,6 +15,8 @@ from vsgjax.networks import (
     ConvDecoder,
     ConvEncoder,
     bernoulli_log_prob,
+    conv_stride2,
+    conv_transpose_stride2,
     embed_dim,
     float_to_image,
     image_to_float,
@@ -68,6 +71,29 @@ def test_encoder_and_decoder_shapes():
     assert _output_shape(ConvDecoder(depth, channels=1), feat) == (2, 5, 64, 64, 1)
     assert _output_shape(MLP(2, 8), feat) == (2, 5)
     assert _output_shape(MLP(2, 8, out_shape=(3, 4)), feat) == (2, 5, 3, 4)
+
+
+@pytest.mark.parametrize("kernel_size, size, out", [(5, 1, 5), (5, 5, 5), (6, 13, 5), (6, 2, 5),
+                                                    (6, 13, 1), (5, 6, 1)])
+def test_phase_decomposed_transposed_conv_equals_lax_conv_transpose(kernel_size, size, out):
+    """Both phase paths: im2col (many outputs) and overlap-add (1x1 input or few outputs)."""
+    x = jax.random.normal(jax.random.PRNGKey(0), (2, 3, size, size, 4))
+    kernel = jax.random.normal(jax.random.PRNGKey(1), (kernel_size, kernel_size, 4, out))
+    # lax.conv_transpose (flax ConvTranspose) correlates with the kernel: flip it.
+    reference = nn.ConvTranspose(out, (kernel_size, kernel_size), strides=(2, 2), padding="VALID")
+    want = reference.apply({"params": {"kernel": kernel[::-1, ::-1], "bias": jnp.zeros(out)}}, x)
+    got = conv_transpose_stride2(x, kernel)
+    assert got.shape == (2, 3, 2 * size - 2 + kernel_size, 2 * size - 2 + kernel_size, out)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-4)
+
+
+@pytest.mark.parametrize("size", [64, 31, 6])
+def test_im2col_strided_conv_equals_lax_conv(size):
+    x = jax.random.normal(jax.random.PRNGKey(0), (2, 3, size, size, 4))
+    kernel = jax.random.normal(jax.random.PRNGKey(1), (4, 4, 4, 5))
+    reference = nn.Conv(5, (4, 4), strides=(2, 2), padding="VALID")
+    want = reference.apply({"params": {"kernel": kernel, "bias": jnp.zeros(5)}}, x)
+    np.testing.assert_allclose(conv_stride2(x, kernel), want, rtol=1e-5, atol=1e-4)
 
 
 def test_image_scaling_round_trips():

@@ -36,7 +36,7 @@ class TrainState(NamedTuple):
 
 def world_model_for(config: Config, params: dict, action_dim: int = 0) -> WorldModel:
     """The :class:`WorldModel` matching ``params`` (image channels read from the decoder)."""
-    last = f"ConvTranspose_{len(DECODER_KERNELS) - 1}"
+    last = f"ConvTranspose2_{len(DECODER_KERNELS) - 1}"
     channels = params["decoder"][last]["bias"].shape[-1]
     return WorldModel(config, (64, 64, channels), action_dim)
 
@@ -132,5 +132,6 @@ def _imagine_flat(model: WorldModel, params: dict, start: Any, H: int, key: jax.
     return {
         "states": states, "actions": actions, "feats": feats,
         "images": float_to_image(means), "image_means": means,
-        "rewards": model.reward_mean(params, feats), "discounts": model.discount_prob(params, feats),
+        "rewards": model.reward_mean(params, feats),
+        "discounts": model.discount_prob(params, feats),
     }

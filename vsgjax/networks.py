@@ -25,7 +25,7 @@ DECODER_KERNELS = (5, 5, 6, 6)
 
 
 def image_to_float(image: jax.Array) -> jax.Array:
-    """uint8 pixels in [0, 255] -> float32 in [-0.5, 0.5]; float input is taken as already scaled."""
+    """uint8 pixels [0, 255] -> float32 in [-0.5, 0.5]; float input is taken as already scaled."""
     if jnp.issubdtype(image.dtype, jnp.integer):
         return image.astype(jnp.float32) / 255.0 - 0.5
     return image.astype(jnp.float32)
@@ -53,10 +53,100 @@ class ConvEncoder(nn.Module):
     def __call__(self, image: jax.Array) -> jax.Array:
         x = image
         for i, kernel in enumerate(ENCODER_KERNELS):
-            x = nn.Conv(self.depth * 2**i, (kernel, kernel), strides=(2, 2), padding="VALID",
-                        kernel_init=_GLOROT)(x)
+            x = Conv2(self.depth * 2**i, kernel)(x)
             x = nn.elu(x)
         return x.reshape(x.shape[:-3] + (-1,))
+
+
+def conv_stride2(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    """Stride-2 VALID convolution (correlation) as one matmul over im2col patches.
+
+    ``x`` [..., h, w, Cin], ``kernel`` [K, K, Cin, Cout] -> [..., (h-K)//2+1, (w-K)//2+1, Cout].
+    On the CPU this beats XLA's native convolution for every encoder layer (up to 10x for the
+    small-spatial, many-channel last layer), forward and backward.
+    """
+    size, _, cin, cout = kernel.shape
+    oh, ow = (x.shape[-3] - size) // 2 + 1, (x.shape[-2] - size) // 2 + 1
+    patches = jnp.concatenate(
+        [x[..., i:i + 2 * oh - 1:2, j:j + 2 * ow - 1:2, :]
+         for i in range(size) for j in range(size)], axis=-1)
+    return patches @ kernel.reshape(size * size * cin, cout)
+
+
+class Conv2(nn.Module):
+    """Stride-2 VALID convolution with bias (see :func:`conv_stride2`)."""
+
+    features: int
+    kernel_size: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        shape = (self.kernel_size, self.kernel_size, x.shape[-1], self.features)
+        kernel = self.param("kernel", _GLOROT, shape)
+        bias = self.param("bias", nn.initializers.zeros, (self.features,))
+        return conv_stride2(x, kernel) + bias
+
+
+def conv_transpose_stride2(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    """Stride-2 VALID transposed convolution ``out[2i + k] += x[i] @ kernel[k]`` via matmuls.
+
+    ``x`` [..., h, w, Cin], ``kernel`` [K, K, Cin, Cout] -> [..., 2(h-1)+K, 2(w-1)+K, Cout].
+    XLA's CPU convolution with an input dilation (how ``lax.conv_transpose`` is lowered) runs
+    ~10x below matmul speed. Instead the output is split into its four stride phases (a, b):
+    ``out[2p + a] = Σ_m x[p - m] @ kernel[a + 2m]`` with ``m < M = ceil(K/2)`` (taps with
+    ``a + 2m >= K`` are zero), then interleaved (depth to space). The phase sums are computed
+    whichever way moves less memory: a matmul over ``M x M`` input patches (im2col), or a matmul
+    of every input pixel with all taps followed by ``M x M`` shifted adds (overlap-add).
+    """
+    size, _, cin, cout = kernel.shape
+    batch, h, w = x.shape[:-3], x.shape[-3], x.shape[-2]
+    m = (size + 1) // 2
+    # taps[i, a, j, b] = kernel[2i + a, 2j + b] (zero beyond K)
+    taps = jnp.pad(kernel, ((0, 2 * m - size), (0, 2 * m - size), (0, 0), (0, 0)))
+    taps = taps.reshape(m, 2, m, 2, cin, cout)
+    oh, ow = h + m - 1, w + m - 1
+    if h * w * 4 * cout < oh * ow * cin:
+        phases = _overlap_add(x, taps, oh, ow)
+    else:
+        phases = _phase_im2col(x, taps, oh, ow)
+    y = jnp.moveaxis(phases, -3, -4).reshape(batch + (2 * oh, 2 * ow, cout))
+    return y[..., : 2 * (h - 1) + size, : 2 * (w - 1) + size, :]
+
+
+def _phase_im2col(x, taps, oh, ow):
+    """[..., h, w, Cin] -> phases [..., oh, ow, 2, 2, Cout] as one matmul over patches."""
+    m, _, _, _, cin, cout = taps.shape
+    pad = [(0, 0)] * (x.ndim - 3) + [(m - 1, m - 1), (m - 1, m - 1), (0, 0)]
+    x = jnp.pad(x, pad)
+    patches = jnp.concatenate(
+        [x[..., i:i + oh, j:j + ow, :] for i in range(m) for j in range(m)], axis=-1)
+    # patch offset (i, j) reads x[p - (m-1-i)]: tap index m-1-i
+    weights = taps[::-1, :, ::-1].transpose(0, 2, 4, 1, 3, 5).reshape(m * m * cin, 4 * cout)
+    return (patches @ weights).reshape(x.shape[:-3] + (oh, ow, 2, 2, cout))
+
+
+def _overlap_add(x, taps, oh, ow):
+    """[..., h, w, Cin] -> phases [..., oh, ow, 2, 2, Cout]: all taps per pixel, shifted sums."""
+    m, _, _, _, cin, cout = taps.shape
+    z = x @ taps.transpose(4, 0, 2, 1, 3, 5).reshape(cin, m * m * 4 * cout)
+    z = z.reshape(x.shape[:-1] + (m, m, 2, 2, cout))
+    lead = [(0, 0)] * (x.ndim - 3)
+    return sum(jnp.pad(z[..., i, j, :, :, :], lead + [(i, m - 1 - i), (j, m - 1 - j)]
+                       + [(0, 0)] * 3) for i in range(m) for j in range(m))
+
+
+class ConvTranspose2(nn.Module):
+    """Stride-2 VALID transposed convolution with bias (see :func:`conv_transpose_stride2`)."""
+
+    features: int
+    kernel_size: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        shape = (self.kernel_size, self.kernel_size, x.shape[-1], self.features)
+        kernel = self.param("kernel", _GLOROT, shape)
+        bias = self.param("bias", nn.initializers.zeros, (self.features,))
+        return conv_transpose_stride2(x, kernel) + bias
 
 
 class ConvDecoder(nn.Module):
@@ -72,8 +162,7 @@ class ConvDecoder(nn.Module):
         last = len(DECODER_KERNELS) - 1
         for i, kernel in enumerate(DECODER_KERNELS):
             features = self.channels if i == last else self.depth * 2 ** (last - 1 - i)
-            x = nn.ConvTranspose(features, (kernel, kernel), strides=(2, 2), padding="VALID",
-                                 kernel_init=_GLOROT)(x)
+            x = ConvTranspose2(features, kernel)(x)
             if i != last:
                 x = nn.elu(x)
         return x

@@ -341,9 +341,10 @@ class Trainer:
         values = {short: record[k] for short, k in shown.items() if k in record}
         self.progress.show(values)
         if not self.progress.enabled:  # a line per log instead of the bar
-            self.progress.write(f"train env step {self.env_steps:>9}: updates "
-                                f"{self.counters.updates}, {record['env_steps_per_s']:.1f} "
-                                "steps/s, " + ", ".join(f"{k} {v:.3g}" for k, v in values.items()))
+            parts = [f"updates {self.counters.updates}",
+                     f"{record['env_steps_per_s']:.1f} steps/s",
+                     *(f"{k} {v:.3g}" for k, v in values.items())]
+            self.progress.write(f"train env step {self.env_steps:>9}: " + ", ".join(parts))
         self._window, self._window_episodes = [], []
         self._last_log_time, self._last_log_step = now, self.env_steps
 

@@ -63,7 +63,7 @@ def balanced_kl_loss(kl_rep: jax.Array, kl_dyn: jax.Array, scale: float, balance
 
 @dataclasses.dataclass(frozen=True)
 class WorldModel:
-    """Encoder + dynamics + decoder + reward (+ discount) heads. Hashable: usable as a jit static."""
+    """Encoder, dynamics, decoder, reward (+ discount) heads. Hashable: usable as a jit static."""
 
     config: Config
     obs_shape: tuple[int, int, int] = (64, 64, 3)
@@ -187,7 +187,8 @@ class WorldModel:
         """The straight-through gate samples [T, D] of the posteriors, one per latent dim (SVSG)."""
         dyn = self.dynamics
         if not dyn.gated:
-            raise ValueError(f"wm.kl_masked needs a gated model, got model {self.config.model.name!r}")
+            raise ValueError(
+                f"wm.kl_masked needs a gated model, got model {self.config.model.name!r}")
         sample = jax.vmap(dyn.gates)(posts)[0]
         latent_shape = jax.eval_shape(dyn.kl, dyn.initial(), dyn.initial()).shape
         if sample.shape[1:] != latent_shape:
