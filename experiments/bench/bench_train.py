@@ -1,7 +1,11 @@
-"""Training-loop throughput of ``small`` VSG, and the loop's own overhead.
+"""Training-loop throughput of VSG and the loop's own overhead.
+
+``main()`` (``make bench``) measures the ``small`` size; ``python -m
+experiments.bench.bench_train debug`` measures the ``debug`` size (a worst case for the
+overhead share, since its updates are cheapest).
 
 For each task, a :class:`vsgjax.train.Trainer` is warmed up (prefill, compilation, first
-updates), then a window of ``WINDOW`` agent steps of the steady-state loop is timed at the
+updates), then a window of agent steps (``WINDOWS``) of the steady-state loop is timed at the
 default train ratio (one update per ``train_every`` agent steps; evaluation disabled; logging,
 episode writing and checkpointing as configured). The same amounts of work are then timed bare:
 
@@ -17,6 +21,7 @@ Replay memory: bytes per stored step (uint8 images) times one million frames.
 from __future__ import annotations
 
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -29,15 +34,19 @@ from vsgjax.envs import make_env
 from vsgjax.train import Trainer, enable_compilation_cache
 
 TASKS = ("dmc_walker_walk", "bbs_basic")
-WINDOW = 20  # agent steps per timed window (4 updates at train_every 5)
+WINDOWS = {"small": 20, "debug": 200}  # agent steps per timed window, by size
 REPEATS = 2
 RESULTS = Path(__file__).parent / "results" / "train.md"
 
 
-def warm_trainer(task: str, logdir: Path) -> tuple[Trainer, float]:
-    """A small-VSG trainer past prefill with a few updates done; returns it and the warm-up time."""
-    config = make_config(task, "vsg", "small", ["train.eval_every=100000000",
-                                                "train.video_every=100000000"])
+def warm_trainer(task: str, size: str, logdir: Path) -> tuple[Trainer, float]:
+    """A VSG trainer past prefill with a few updates done; returns it and the warm-up time.
+
+    The train ratio is the domain's default (``train_every`` 5 for BBS and DMC) at every size.
+    """
+    config = make_config(task, "vsg", size, ["train.eval_every=100000000",
+                                             "train.video_every=100000000",
+                                             "train.train_every=5"])
     started = time.perf_counter()
     trainer = Trainer(config, logdir, progress=False)
     while trainer.counters.updates < 3:
@@ -45,11 +54,11 @@ def warm_trainer(task: str, logdir: Path) -> tuple[Trainer, float]:
     return trainer, time.perf_counter() - started
 
 
-def time_loop(trainer: Trainer) -> tuple[float, int]:
-    """Seconds for WINDOW agent steps of the loop, and the updates it made."""
+def time_loop(trainer: Trainer, window: int) -> tuple[float, int]:
+    """Seconds for ``window`` agent steps of the loop, and the updates it made."""
     start_steps, start_updates = trainer.counters.agent_steps, trainer.counters.updates
     started = time.perf_counter()
-    while trainer.counters.agent_steps - start_steps < WINDOW:
+    while trainer.counters.agent_steps - start_steps < window:
         trainer.iteration()
     jax.block_until_ready(trainer.state)
     return time.perf_counter() - started, trainer.counters.updates - start_updates
@@ -92,20 +101,21 @@ def time_policy(trainer: Trainer, steps: int) -> float:
     return time.perf_counter() - started
 
 
-def bench_task(task: str) -> dict:
+def bench_task(task: str, size: str) -> dict:
     with tempfile.TemporaryDirectory() as logdir:
-        trainer, warmup = warm_trainer(task, Path(logdir))
+        trainer, warmup = warm_trainer(task, size, Path(logdir))
         try:
-            loops = [time_loop(trainer) for _ in range(REPEATS)]
+            window = WINDOWS[size]
+            loops = [time_loop(trainer, window) for _ in range(REPEATS)]
             updates = int(statistics.median(u for _, u in loops))
             row = {
-                "task": task, "warmup_s": warmup, "updates": updates,
+                "task": task, "warmup_s": warmup, "updates": updates, "window": window,
                 "train_every": trainer.config.train.train_every,
                 "repeat": trainer.config.env.action_repeat,
                 "loop": statistics.median(t for t, _ in loops),
-                "env": statistics.median(time_env(trainer.config, WINDOW) for _ in range(REPEATS)),
+                "env": statistics.median(time_env(trainer.config, window) for _ in range(REPEATS)),
                 "train": statistics.median(time_train(trainer, updates) for _ in range(REPEATS)),
-                "policy": statistics.median(time_policy(trainer, WINDOW) for _ in range(REPEATS)),
+                "policy": statistics.median(time_policy(trainer, window) for _ in range(REPEATS)),
                 "bytes_per_step": trainer.replay.bytes_per_step,
             }
         finally:
@@ -114,11 +124,11 @@ def bench_task(task: str) -> dict:
     return row
 
 
-def markdown(rows: list[dict]) -> str:
+def markdown(rows: list[dict], size: str) -> str:
     lines = [
-        "## Training loop (small VSG, default train ratio)",
+        f"## Training loop ({size} VSG, default train ratio)",
         "",
-        f"Timed window: {WINDOW} agent steps of the steady-state loop (after prefill and "
+        f"Timed window: {WINDOWS[size]} agent steps of the steady-state loop (after prefill and "
         f"compilation), median of {REPEATS}. Bare times are the same amount of work alone: env "
         "steps with random actions, `train_step` calls, jitted `policy_step` calls. Overhead = "
         "loop − (env + train + policy): collection boundary, replay, episode files, logging.",
@@ -128,7 +138,7 @@ def markdown(rows: list[dict]) -> str:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        rate = WINDOW * r["repeat"] / r["loop"]
+        rate = r["window"] * r["repeat"] / r["loop"]
         lines.append(
             f"| {r['task']} | {rate:.1f} | {r['loop']:.2f} | {r['env']:.2f} | "
             f"{r['train']:.2f} ({r['updates']}) | {r['policy']:.2f} | {r['overhead']:.2f} | "
@@ -140,14 +150,14 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main() -> None:
+def main(size: str = "small") -> None:
     enable_compilation_cache()  # compilation is reported (warm-up), not timed in the window
-    rows = [bench_task(task) for task in TASKS]
-    text = markdown(rows)
+    rows = [bench_task(task, size) for task in TASKS]
+    text = markdown(rows, size)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(text)
     print(text)
 
 
 if __name__ == "__main__":
-    main()
+    main(*sys.argv[1:2])
