@@ -77,14 +77,15 @@ def test_observe_matches_the_posteriors_of_train_step(trained):
 def test_imagine_shapes_for_batched_starts(trained):
     _, states, _, posts = trained
     params = states[-1].params
-    out = api.imagine(params, posts, H, config=CONFIG, key=jax.random.PRNGKey(0), action_dim=2)
+    starts = jax.tree.map(lambda x: x[None, :, -1], posts)  # leading dims [1, 2]
+    out = api.imagine(params, starts, H, config=CONFIG, key=jax.random.PRNGKey(0), action_dim=2)
     feat_dim = CONFIG.model.deter + CONFIG.model.stoch * CONFIG.model.classes
-    assert out["images"].shape == (2, 5, H, 64, 64, 3) and out["images"].dtype == jnp.uint8
-    assert out["image_means"].shape == (2, 5, H, 64, 64, 3)
-    assert out["feats"].shape == (2, 5, H, feat_dim)
-    assert out["actions"].shape == (2, 5, H, 2) and not out["actions"].any()
-    assert out["rewards"].shape == out["discounts"].shape == (2, 5, H)
-    assert out["states"].deter.shape == (2, 5, H, CONFIG.model.deter)
+    assert out["images"].shape == (1, 2, H, 64, 64, 3) and out["images"].dtype == jnp.uint8
+    assert out["image_means"].shape == (1, 2, H, 64, 64, 3)
+    assert out["feats"].shape == (1, 2, H, feat_dim)
+    assert out["actions"].shape == (1, 2, H, 2) and not out["actions"].any()
+    assert out["rewards"].shape == out["discounts"].shape == (1, 2, H)
+    assert out["states"].deter.shape == (1, 2, H, CONFIG.model.deter)
     assert ((out["discounts"] > 0) & (out["discounts"] < 1)).all()
 
 

@@ -3,13 +3,14 @@
 The task (built here, for this test, deterministic): a 64x64 RGB image shows a red square (the
 agent, starting at the centre) and a green square (the target, always at ``TARGET``). A 2-D
 action in [-1, 1]^2 moves the agent by ``SPEED`` per step; the reward is the negative distance
-to the target (times ``REWARD_SCALE``), every step, for ``EPISODE`` steps. Scores over ``EVAL_EPISODES`` evaluation episodes are compared
-with a uniform random policy and with an oracle that moves straight to the target: the agent
-must close at least half of the gap between them.
+to the target (times ``REWARD_SCALE``), every step, for ``EPISODE`` steps. The agent's final
+evaluation score (``EVAL_EPISODES`` episodes) is compared with a uniform random policy and with
+an oracle that moves straight to the target: it must close at least half of the gap between
+them. Measured (seed 0): VSG -16.3, random -42.6, oracle -1.9, threshold -22.3.
 
 Setting ``VSGJAX_BREAK_ACTOR_GRAD=1`` runs the same test with the actor's loss wrapped in
 ``stop_gradient`` (the actor never learns); the test must then FAIL, which shows that it
-measures learning (see the closing note of issue 4).
+measures learning. Measured: -65.5 with the broken gradient, so it fails as it should.
 """
 
 from __future__ import annotations

@@ -256,7 +256,8 @@ def test_loss_finite_for_every_model_at_debug_size(name):
     assert ("gate_loss" in metrics) == model.dynamics.gated
 
 
-@pytest.mark.parametrize("size", ["small", pytest.param("paper", marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("size", ["small", "paper"])
 @pytest.mark.parametrize("name", ["vsg", "svsg"])
 def test_loss_finite_at_larger_sizes(name, size):
     model = WorldModel(make_config("bbs_basic", name, size))

@@ -134,7 +134,7 @@ class OneHotActions(NamedTuple):
         probs = jax.nn.softmax(self.logits)
         index = jax.random.categorical(key, self.logits)
         one_hot = jax.nn.one_hot(index, self.logits.shape[-1], dtype=probs.dtype)
-        return one_hot + probs - sg(probs)
+        return one_hot + (probs - sg(probs))  # exactly one-hot in the forward pass
 
     def mode(self) -> jax.Array:
         return jax.nn.one_hot(jnp.argmax(self.logits, -1), self.logits.shape[-1])
