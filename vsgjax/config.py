@@ -293,7 +293,8 @@ def apply_values(config: Config, values: dict) -> Config:
 
 def _sections() -> dict[str, type]:
     hints = typing.get_type_hints(Config)
-    return {f.name: hints[f.name] for f in fields(Config) if dataclasses.is_dataclass(hints[f.name])}
+    return {f.name: hints[f.name] for f in fields(Config)
+            if dataclasses.is_dataclass(hints[f.name])}
 
 
 def _split_key(key: str) -> tuple[str, str]:
@@ -303,7 +304,8 @@ def _split_key(key: str) -> tuple[str, str]:
         raise ConfigError(f"unknown config key {key!r}; sections: {', '.join(sections)}")
     valid = [f.name for f in fields(sections[section])]
     if name not in valid:
-        raise ConfigError(f"unknown config key {key!r}; valid keys of {section!r}: {', '.join(valid)}")
+        raise ConfigError(
+            f"unknown config key {key!r}; valid keys of {section!r}: {', '.join(valid)}")
     return section, name
 
 
