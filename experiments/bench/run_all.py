@@ -45,10 +45,12 @@ def stamp_new_sections(since: float) -> None:
 
 
 def main(argv: list[str]) -> None:
-    only = set(argv)
+    """Run the benches named in ``argv`` (all by default); ``--assemble`` runs none."""
+    assemble_only = "--assemble" in argv
+    only = set(argv) - {"--assemble"}
     names = sorted(m.name for m in pkgutil.iter_modules([str(HERE)]) if m.name.startswith("bench_"))
     for name in names:
-        if only and name.removeprefix("bench_") not in only:
+        if assemble_only or (only and name.removeprefix("bench_") not in only):
             continue
         print(f"== {name}", flush=True)
         started = datetime.datetime.now().timestamp()
