@@ -19,6 +19,9 @@ _EXPORTS = {
     "init": "vsgjax.api",
     "train_step": "vsgjax.api",
     "imagine": "vsgjax.api",
+    "observe": "vsgjax.api",
+    "TrainState": "vsgjax.api",
+    "make_optimizer": "vsgjax.optim",
     "Agent": "vsgjax.agent",
 }
 

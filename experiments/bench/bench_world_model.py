@@ -290,7 +290,9 @@ def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: lis
     if imagine:
         lines += ["", f"Imagination from {START_STATES} start states, horizon {HORIZON} "
                   "(start states x horizon per second): latent rollout under a policy (what the "
-                  "actor-critic runs) and `vsgjax.imagine` including decoding every frame.", "",
+                  "actor-critic runs) and `vsgjax.imagine` including decoding every frame "
+                  f"(measured for {DECODED_MODEL} only: decoding dominates and is the same "
+                  "network for every model).", "",
                   "| model | size | latent steps/s | decoded steps/s |", "|---|---|---|---|"]
         for r in imagine:
             lines.append(f"| {r['model']} | {r['size']} | {r['latent_steps_per_s']:,.0f} | "
