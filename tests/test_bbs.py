@@ -1,5 +1,6 @@
 """BringBackShapes environment: spec constants, physics, scoring, options, determinism, pixels."""
 
+import functools
 import hashlib
 import math
 import subprocess
@@ -503,13 +504,13 @@ def test_full_arena_goal_pixels_match_the_original():
 
 # ------------------------------------------------------------------------------------ vector
 def test_vector_envs_sync_and_async():
-    def make():
-        return bbs.make("bbs_basic_d1", time_limit=14)
-
+    make = functools.partial(bbs.make, "bbs_basic_d1", time_limit=14)  # picklable for spawn
     single = [make() for _ in range(2)]
     expected = [env.reset(seed=s)[0] for env, s in zip(single, (5, 6), strict=True)]
     actions = np.random.default_rng(0).uniform(-1, 1, (5, 2, 2)).astype(np.float32)
-    for vector_cls in (gymnasium.vector.SyncVectorEnv, gymnasium.vector.AsyncVectorEnv):
+    # spawn, not fork: forking a process that has imported JAX can deadlock
+    spawn_async = functools.partial(gymnasium.vector.AsyncVectorEnv, context="spawn")
+    for vector_cls in (gymnasium.vector.SyncVectorEnv, spawn_async):
         envs = vector_cls([make, make])
         obs, _ = envs.reset(seed=[5, 6])
         assert np.array_equal(obs, np.stack(expected))
