@@ -73,8 +73,8 @@ def conv_stride2(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return patches @ kernel.reshape(size * size * cin, cout)
 
 
-class Conv2(nn.Module):
-    """Stride-2 VALID convolution with bias (see :func:`conv_stride2`)."""
+class _Stride2Layer(nn.Module):
+    """A ``[K, K, Cin, Cout]`` Glorot kernel and a zero bias around the stride-2 op ``apply_op``."""
 
     features: int
     kernel_size: int
@@ -84,7 +84,13 @@ class Conv2(nn.Module):
         shape = (self.kernel_size, self.kernel_size, x.shape[-1], self.features)
         kernel = self.param("kernel", _GLOROT, shape)
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return conv_stride2(x, kernel) + bias
+        return self.apply_op(x, kernel) + bias
+
+
+class Conv2(_Stride2Layer):
+    """Stride-2 VALID convolution with bias (see :func:`conv_stride2`)."""
+
+    apply_op = staticmethod(conv_stride2)
 
 
 def conv_transpose_stride2(x: jax.Array, kernel: jax.Array) -> jax.Array:
@@ -135,18 +141,10 @@ def _overlap_add(x, taps, oh, ow):
                        + [(0, 0)] * 3) for i in range(m) for j in range(m))
 
 
-class ConvTranspose2(nn.Module):
+class ConvTranspose2(_Stride2Layer):
     """Stride-2 VALID transposed convolution with bias (see :func:`conv_transpose_stride2`)."""
 
-    features: int
-    kernel_size: int
-
-    @nn.compact
-    def __call__(self, x: jax.Array) -> jax.Array:
-        shape = (self.kernel_size, self.kernel_size, x.shape[-1], self.features)
-        kernel = self.param("kernel", _GLOROT, shape)
-        bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return conv_transpose_stride2(x, kernel) + bias
+    apply_op = staticmethod(conv_transpose_stride2)
 
 
 class ConvDecoder(nn.Module):
