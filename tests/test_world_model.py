@@ -22,7 +22,7 @@ from vsgjax.networks import (
     image_to_float,
     normal_log_prob,
 )
-from vsgjax.world_model import WorldModel, balanced_kl_loss, per_step_kl
+from vsgjax.world_model import WorldModel, balanced_kl_loss, image_mse, per_step_kl
 
 
 def random_batch(seed: int, batch: int, length: int, obs_shape=(64, 64, 3), action_dim: int = 2):
@@ -282,3 +282,11 @@ def test_heads_without_discount_and_with_tanh_reward():
 def test_obs_shape_is_checked():
     with pytest.raises(ValueError, match=r"\(32, 32, 3\)"):
         WorldModel(make_config(size="debug"), obs_shape=(32, 32, 3))
+
+
+def test_image_mse_recovers_the_squared_error_from_the_gaussian_image_loss():
+    rng = np.random.default_rng(0)
+    mean, target = rng.uniform(-0.5, 0.5, (2, 4, 64, 64, 3)).astype(np.float32)
+    loss = -normal_log_prob(mean, target, event_dims=3).mean()
+    np.testing.assert_allclose(image_mse(loss, 64 * 64 * 3), np.square(mean - target).mean(),
+                               rtol=1e-3)

@@ -74,8 +74,13 @@ class Agent:
             "critic": make_optimizer(ac.critic_lr, ac.eps, ac.clip, ac.weight_decay),
         }
 
+    @functools.partial(jax.jit, static_argnums=0)
     def init(self, key: jax.Array) -> AgentState:
-        """Fresh parameters (the slow critic a copy of the critic), optimizer states, step 0."""
+        """Fresh parameters (the slow critic a copy of the critic), optimizer states, step 0.
+
+        Jitted: one compiled program instead of hundreds of op-by-op initialisers (~10 s less
+        at the small size on a 2-core CPU).
+        """
         wm_key, ac_key = jax.random.split(key)
         params = {"wm": self.world_model.init(wm_key),
                   **self.behaviour.init(ac_key, self.world_model.dynamics.feat_dim)}

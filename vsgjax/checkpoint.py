@@ -210,7 +210,8 @@ def _like(path: str, value: Any, like: Any) -> Any:
             f"leaf {path}: checkpoint has {value.dtype}{list(value.shape)}, "
             f"target wants {dtype}{list(shape)}"
         )
-    return jax.numpy.asarray(value) if isinstance(like, jax.Array) else value
+    wants_jax = isinstance(like, jax.Array | jax.ShapeDtypeStruct)  # a struct: shapes-only target
+    return jax.numpy.asarray(value) if wants_jax else value
 
 
 def load(path: str | os.PathLike, target: Any) -> tuple[Any, dict]:

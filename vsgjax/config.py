@@ -204,8 +204,9 @@ _SIZE = {
         "model.deter": 256, "model.hidden": 256, "wm.cnn_depth": 16,
         "wm.mlp_layers": 2, "wm.mlp_units": 256, "wm.reward_layers": 2,
         "wm.discount_layers": 2, "ac.actor_layers": 2, "ac.critic_layers": 2,
-        "train.batch": 16, "train.prefill": 1000, "train.steps": 200_000,
-        "train.eval_every": 10_000, "train.eval_episodes": 2,
+        "train.batch": 8, "train.length": 32, "train.train_every": 2,
+        "train.prefill": 1000, "train.steps": 200_000,
+        "train.eval_every": 10_000, "train.eval_episodes": 2, "train.log_every": 200,
         "train.replay_capacity": 500_000,
     },
     "debug": {

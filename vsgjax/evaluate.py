@@ -56,7 +56,7 @@ def checkpoint_tree(state: AgentState, key: jax.Array) -> dict:
 
 def restore_latest(ckpt_dir: Path, agent: Agent, key: jax.Array) -> checkpoint.Checkpoint | None:
     """The newest readable checkpoint filled into the agent's structure, or None."""
-    target = checkpoint_tree(agent.init(key), key)
+    target = checkpoint_tree(jax.eval_shape(agent.init, key), key)  # shapes only, no compute
     return checkpoint.restore(ckpt_dir, target)
 
 

@@ -56,6 +56,9 @@ from vsgjax.videos import open_loop_video
 METHOD_NAMES = {"dreamerv1": "DreamerV1", "dreamerv2": "DreamerV2", "vsg": "VSG",
                 "svsg": "SVSG", "ssm": "SSM"}  # as in ../shared/reference_scores
 KEEP_CHECKPOINTS = 3
+# Shown on the progress bar after every update: the world-model loss and the per-pixel image
+# error, which falls visibly from the first updates (the image loss is dominated by a constant).
+PER_UPDATE = {"loss": "wm/loss", "mse": "wm/image_mse"}
 # Config sections that may change between a run and its resumption (not the model or env).
 RESUMABLE_SECTIONS = ("train",)
 
@@ -164,6 +167,7 @@ class Trainer:
 
     def __init__(self, config: Config, logdir: Path, *, make_envs: MakeEnvs = make_env_batch,
                  progress: bool = True, out=print):
+        self._started = time.monotonic()
         self.config, self.logdir, self.out = config, Path(logdir), out
         train = config.train
         self.logdir.mkdir(parents=True, exist_ok=True)
@@ -200,6 +204,7 @@ class Trainer:
                                    on_episode=self._on_episode)
         self.carry = self.agent.initial_carry(config.env.num_envs)
         self.progress = Progress(train.steps, self.env_steps, enabled=progress)
+        self._first_update = self.counters.updates + 1  # of this process: it compiles
         self._window: list[dict] = []  # host metrics of the updates since the last log
         self._window_episodes: list[dict] = []
         self._last_log_time, self._last_log_step = time.monotonic(), self.env_steps
@@ -307,11 +312,16 @@ class Trainer:
         c = self.counters
         if c.train_start < 0:
             c.train_start = c.agent_steps
+            self.progress.write(
+                f"prefill done at env step {self.env_steps} ({self.replay.num_steps} steps in "
+                "replay); compiling the update (once per process; tens of seconds on a CPU), "
+                "then training")
         due = 1 + (c.agent_steps - c.train_start) // self.config.train.train_every
         while c.updates < due:
             self.update()
 
     def update(self) -> None:
+        started = time.monotonic()
         batch = self.replay.sample(self.config.train.batch)
         state, metrics = self.agent.train_step(self.state, batch, self._next_key())
         metrics = jax.device_get(metrics)
@@ -319,6 +329,14 @@ class Trainer:
         self.state = state
         self.counters.updates += 1
         self._window.append(metrics)
+        if self.counters.updates == self._first_update:
+            self.progress.write(
+                f"update {self.counters.updates} took {time.monotonic() - started:.0f} s with "
+                f"its compilation ({time.monotonic() - self._started:.0f} s after start)")
+        # the latest update's losses on the bar, between the averaged log lines
+        self.progress.show({"upd": self.counters.updates,
+                            **{short: metrics[k] for short, k in PER_UPDATE.items()
+                               if k in metrics}})
 
     def maybe_log(self) -> None:
         if self.env_steps < self.counters.next_log:
@@ -335,9 +353,8 @@ class Trainer:
         if self._window_episodes:
             record["return"] = float(np.mean([e["return"] for e in self._window_episodes]))
         self.logger.scalars(self.env_steps, record, prefix="train")
-        shown = {"ret": "return", "loss": "wm/loss", "img": "wm/image_loss",
-                 "rew": "wm/reward_loss", "kl": "wm/kl", "actor": "actor/loss",
-                 "critic": "critic/loss"}
+        shown = {"ret": "return", **PER_UPDATE, "rew": "wm/reward_loss", "kl": "wm/kl",
+                 "actor": "actor/loss", "critic": "critic/loss"}
         values = {short: record[k] for short, k in shown.items() if k in record}
         self.progress.show(values)
         if not self.progress.enabled:  # a line per log instead of the bar
