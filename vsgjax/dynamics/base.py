@@ -26,7 +26,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from vsgjax.cells import GATE_MODES
+from vsgjax.cells import GATE_MODES, dense, dense_init
 from vsgjax.config import ModelConfig
 from vsgjax.distributions import Latent, LatentSpace
 
@@ -122,9 +122,34 @@ class Dynamics(abc.ABC):
     def feat(self, state: State) -> jax.Array:
         """Feature vector ``[feat_dim]`` that the heads, actor and critic read."""
 
-    @abc.abstractmethod
     def project_embed(self, params: dict, embed: jax.Array) -> jax.Array:
         """Embedding part of the posterior's first layer; ``[..., E] -> [..., hidden]``."""
+        return dense(params["obs_embed"], embed)
+
+    def _stats_init(self, keys: jax.Array, prior_in: int, context: str, context_dim: int,
+                    embed_dim: int) -> dict:
+        """The layers every model shares (five keys): the prior's hidden layer from
+        ``prior_in`` features and its statistics, and the posterior's hidden layer from the
+        prior's ``context`` and the embedding, and its statistics."""
+        cfg, stats_dim = self.cfg, self.latent.stats_dim
+        return {
+            "img_out": dense_init(keys[0], prior_in, cfg.hidden),
+            "img_stats": dense_init(keys[1], cfg.hidden, stats_dim),
+            f"obs_{context}": dense_init(keys[2], context_dim, cfg.hidden),
+            "obs_embed": dense_init(keys[3], embed_dim, cfg.hidden, bias=False),
+            "obs_stats": dense_init(keys[4], cfg.hidden, stats_dim),
+        }
+
+    def _prior_dist(self, params: dict, prior_in: jax.Array):
+        """``stats(ELU(Dense(prior_in)))``: the prior's distribution."""
+        hidden = jax.nn.elu(dense(params["img_out"], prior_in))
+        return self.latent.from_raw(dense(params["img_stats"], hidden))
+
+    def _posterior_dist(self, params: dict, context: str, value: jax.Array,
+                        embed_proj: jax.Array):
+        """``stats(ELU(Dense([context, embed])))``: the posterior's distribution."""
+        hidden = jax.nn.elu(dense(params[f"obs_{context}"], value) + embed_proj)
+        return self.latent.from_raw(dense(params["obs_stats"], hidden))
 
     @abc.abstractmethod
     def _obs_step_projected(

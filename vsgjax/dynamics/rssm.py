@@ -50,11 +50,7 @@ class RSSM(Dynamics):
         return {
             "img_in": dense_init(keys[0], latent.flat_dim + action_dim, cfg.hidden),
             "cell": cell_init(keys[1], cfg.hidden, cfg.deter, cfg.cell_norm),
-            "img_out": dense_init(keys[2], cfg.deter, cfg.hidden),
-            "img_stats": dense_init(keys[3], cfg.hidden, latent.stats_dim),
-            "obs_deter": dense_init(keys[4], cfg.deter, cfg.hidden),
-            "obs_embed": dense_init(keys[5], embed_dim, cfg.hidden, bias=False),
-            "obs_stats": dense_init(keys[6], cfg.hidden, latent.stats_dim),
+            **self._stats_init(keys[2:], cfg.deter, "deter", cfg.deter, embed_dim),
         }
 
     def initial(self) -> RSSMState | GatedRSSMState:
@@ -81,18 +77,10 @@ class RSSM(Dynamics):
         dist = self._prior_dist(params, deter)
         return RSSMState(deter, dist.sample(stoch_key), dist)
 
-    def _prior_dist(self, params, deter):
-        hidden = jax.nn.elu(dense(params["img_out"], deter))
-        return self.latent.from_raw(dense(params["img_stats"], hidden))
-
-    def project_embed(self, params, embed):
-        return dense(params["obs_embed"], embed)
-
     def _obs_step_projected(self, params, prev, action, embed_proj, key):
         prior_key, post_key = jax.random.split(key)
         prior = self.img_step(params, prev, action, prior_key)
-        hidden = jax.nn.elu(dense(params["obs_deter"], prior.deter) + embed_proj)
-        dist = self.latent.from_raw(dense(params["obs_stats"], hidden))
+        dist = self._posterior_dist(params, "deter", prior.deter, embed_proj)
         return prior._replace(stoch=dist.sample(post_key), dist=dist), prior
 
     def feat(self, state):

@@ -30,11 +30,7 @@ class SSM(Dynamics):
         keys = jax.random.split(key, 6)
         return {
             "img_in": dense_init(keys[0], latent.flat_dim + action_dim, cfg.hidden),
-            "img_out": dense_init(keys[1], cfg.hidden, cfg.hidden),
-            "img_stats": dense_init(keys[2], cfg.hidden, latent.stats_dim),
-            "obs_hidden": dense_init(keys[3], cfg.hidden, cfg.hidden),
-            "obs_embed": dense_init(keys[4], embed_dim, cfg.hidden, bias=False),
-            "obs_stats": dense_init(keys[5], cfg.hidden, latent.stats_dim),
+            **self._stats_init(keys[1:], cfg.hidden, "hidden", cfg.hidden, embed_dim),
         }
 
     def initial(self) -> SSMState:
@@ -44,21 +40,16 @@ class SSM(Dynamics):
         """Prior state and the transition's hidden ``x`` (which the posterior also reads)."""
         inputs = jnp.concatenate([self.latent.flatten(prev.stoch), action], -1)
         x = jax.nn.elu(dense(params["img_in"], inputs))
-        hidden = jax.nn.elu(dense(params["img_out"], x))
-        dist = self.latent.from_raw(dense(params["img_stats"], hidden))
+        dist = self._prior_dist(params, x)
         return SSMState(dist.sample(key), dist), x
 
     def img_step(self, params, prev, action, key):
         return self._prior(params, prev, action, key)[0]
 
-    def project_embed(self, params, embed):
-        return dense(params["obs_embed"], embed)
-
     def _obs_step_projected(self, params, prev, action, embed_proj, key):
         prior_key, post_key = jax.random.split(key)
         prior, x = self._prior(params, prev, action, prior_key)
-        hidden = jax.nn.elu(dense(params["obs_hidden"], x) + embed_proj)
-        dist = self.latent.from_raw(dense(params["obs_stats"], hidden))
+        dist = self._posterior_dist(params, "hidden", x, embed_proj)
         return SSMState(dist.sample(post_key), dist), prior
 
     def feat(self, state):

@@ -42,16 +42,12 @@ class SVSG(Dynamics):
         return self.cfg.stoch
 
     def init(self, key: jax.Array, embed_dim: int, action_dim: int) -> dict:
-        cfg, latent = self.cfg, self.latent
+        cfg = self.cfg
         keys = jax.random.split(key, 7)
         return {
             "img_in": dense_init(keys[0], cfg.stoch + action_dim, cfg.hidden),
             "cell": cell_init(keys[1], cfg.hidden, cfg.stoch, cfg.cell_norm),
-            "img_out": dense_init(keys[2], cfg.stoch, cfg.hidden),
-            "img_stats": dense_init(keys[3], cfg.hidden, latent.stats_dim),
-            "obs_cand": dense_init(keys[4], cfg.stoch, cfg.hidden),
-            "obs_embed": dense_init(keys[5], embed_dim, cfg.hidden, bias=False),
-            "obs_stats": dense_init(keys[6], cfg.hidden, latent.stats_dim),
+            **self._stats_init(keys[2:], cfg.stoch, "cand", cfg.stoch, embed_dim),
         }
 
     def initial(self) -> SVSGState:
@@ -65,22 +61,17 @@ class SVSG(Dynamics):
         out = sparse_gru_cell(
             params["cell"], prev.stoch, x, cell_key, self.cfg.gate_bias, self.cfg.gate_mode
         )
-        hidden = jax.nn.elu(dense(params["img_out"], out.candidate))
-        dist = self.latent.from_raw(dense(params["img_stats"], hidden))
+        dist = self._prior_dist(params, out.candidate)
         stoch = gated_update(out.gate, dist.sample(stoch_key), prev.stoch)
         return SVSGState(stoch, dist, out.gate, out.gate_logit), out.candidate
 
     def img_step(self, params, prev, action, key):
         return self._prior(params, prev, action, key)[0]
 
-    def project_embed(self, params, embed):
-        return dense(params["obs_embed"], embed)
-
     def _obs_step_projected(self, params, prev, action, embed_proj, key):
         prior_key, post_key = jax.random.split(key)
         prior, candidate = self._prior(params, prev, action, prior_key)
-        hidden = jax.nn.elu(dense(params["obs_cand"], candidate) + embed_proj)
-        dist = self.latent.from_raw(dense(params["obs_stats"], hidden))
+        dist = self._posterior_dist(params, "cand", candidate, embed_proj)
         stoch = gated_update(prior.gate, dist.sample(post_key), prev.stoch)
         return prior._replace(stoch=stoch, dist=dist), prior
 
