@@ -55,11 +55,7 @@ def parse_task(task: str) -> tuple[str, tuple[str, ...]]:
 def _parse_bbs(task: str, variant: str) -> tuple[str]:
     from vsgjax.envs.bbs_task import variant_names
 
-    names = variant_names()
-    if variant not in names:
-        raise TaskError(f"unknown BringBackShapes variant in {task!r}; valid: "
-                        + ", ".join(f"bbs_{name}" for name in names))
-    return (variant,)
+    return (_one_of(task, variant, variant_names(), "bbs", "BringBackShapes variant"),)
 
 
 def _parse_dmc(task: str, rest: str) -> tuple[str, str]:
@@ -76,11 +72,15 @@ def _parse_dmc(task: str, rest: str) -> tuple[str, str]:
 def _parse_atari(task: str, game: str) -> tuple[str]:
     from vsgjax.envs.atari import all_games
 
-    games = all_games()
-    if game not in games:
-        raise TaskError(f"unknown Atari game in {task!r}; valid: "
-                        + ", ".join(f"atari_{g}" for g in games))
-    return (game,)
+    return (_one_of(task, game, all_games(), "atari", "Atari game"),)
+
+
+def _one_of(task: str, name: str, valid, family: str, what: str) -> str:
+    """``name`` if it is in ``valid``, else a TaskError listing the valid task names."""
+    if name not in valid:
+        raise TaskError(f"unknown {what} in {task!r}; valid: "
+                        + ", ".join(f"{family}_{v}" for v in valid))
+    return name
 
 
 _PARSERS = {"bbs": _parse_bbs, "dmc": _parse_dmc, "atari": _parse_atari}
