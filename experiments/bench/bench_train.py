@@ -34,19 +34,19 @@ from vsgjax.envs import make_env
 from vsgjax.train import Trainer, enable_compilation_cache
 
 TASKS = ("dmc_walker_walk", "bbs_basic")
-WINDOWS = {"small": 20, "debug": 200}  # agent steps per timed window, by size
-REPEATS = 2
+WINDOWS = {"small": 60, "debug": 200}  # agent steps per timed window, by size
+REPEATS = 3
 RESULTS = Path(__file__).parent / "results" / "train.md"
 
 
 def warm_trainer(task: str, size: str, logdir: Path) -> tuple[Trainer, float]:
     """A VSG trainer past prefill with a few updates done; returns it and the warm-up time.
 
-    The train ratio is the domain's default (``train_every`` 5 for BBS and DMC) at every size.
+    The train ratio is the size's default (one update of ``train.batch`` x ``train.length``
+    per ``train.train_every`` agent steps).
     """
     config = make_config(task, "vsg", size, ["train.eval_every=100000000",
-                                             "train.video_every=100000000",
-                                             "train.train_every=5"])
+                                             "train.video_every=100000000"])
     started = time.perf_counter()
     trainer = Trainer(config, logdir, progress=False)
     while trainer.counters.updates < 3:
