@@ -290,3 +290,11 @@ def test_image_mse_recovers_the_squared_error_from_the_gaussian_image_loss():
     loss = -normal_log_prob(mean, target, event_dims=3).mean()
     np.testing.assert_allclose(image_mse(loss, 64 * 64 * 3), np.square(mean - target).mean(),
                                rtol=1e-3)
+
+
+def test_decode_frames_in_chunks_equals_one_decode():
+    model = WorldModel(make_config("bbs_basic", "vsg", "debug"))
+    params = model.init(jax.random.PRNGKey(0))
+    feats = jax.random.normal(jax.random.PRNGKey(1), (3, 5, model.dynamics.feat_dim))
+    np.testing.assert_allclose(model.decode_frames(params, feats, chunk=4),
+                               model.decode(params, feats), atol=1e-5)

@@ -128,7 +128,7 @@ def _imagine_flat(model: WorldModel, params: dict, start: Any, H: int, key: jax.
         states = jax.tree.map(lambda x: x[:, 1:], states)
         actions = actions[:, :-1]
     feats = jax.vmap(jax.vmap(dyn.feat))(states)
-    means = model.decode(params, feats)
+    means = model.decode_frames(params, feats)
     return {
         "states": states, "actions": actions, "feats": feats,
         "images": float_to_image(means), "image_means": means,

@@ -31,7 +31,7 @@ def _reconstruct(config: Config, params: dict, posts) -> jax.Array:
     """Decoded posterior states [S, T] -> uint8 images [S, T, H, W, C]."""
     model = api.world_model_for(config, params)
     feats = jax.vmap(jax.vmap(model.dynamics.feat))(posts)
-    return float_to_image(model.decode(params, feats))
+    return float_to_image(model.decode_frames(params, feats))
 
 
 def open_loop_frames(config: Config, wm_params: dict, episode: dict, key: jax.Array,

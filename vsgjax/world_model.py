@@ -130,6 +130,14 @@ class WorldModel:
         """Features [..., F] -> mean image [..., 64, 64, C] in [-0.5, 0.5] units."""
         return self.decoder.apply({"params": params["decoder"]}, feat)
 
+    def decode_frames(self, params: dict, feat: jax.Array, chunk: int = 256) -> jax.Array:
+        """:meth:`decode` of any number of frames, ``chunk`` at a time (for viewing, not
+        training): the decoder's patch matrices grow with the frames decoded at once (12,000
+        imagined frames at the paper size would need ~40 GB in one go)."""
+        flat = feat.reshape((-1, feat.shape[-1]))
+        means = jax.lax.map(lambda f: self.decode(params, f), flat, batch_size=chunk)
+        return means.reshape(feat.shape[:-1] + means.shape[1:])
+
     def reward_mean(self, params: dict, feat: jax.Array) -> jax.Array:
         """Mean of the reward Normal(σ=1) (in tanh units when ``reward_tanh``)."""
         return self.reward_head.apply({"params": params["reward"]}, feat)

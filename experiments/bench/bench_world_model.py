@@ -4,6 +4,7 @@ Each configuration runs in its own subprocess (so peak RSS is per configuration)
 
     python -m experiments.bench.bench_world_model                 # everything (~15 min, 2 cores)
     python -m experiments.bench.bench_world_model --sizes small   # skip the paper size
+    python -m experiments.bench.bench_world_model --resume        # finish an interrupted run
 
 Measured, at batch 16 x length 50 with 64x64x3 images (BBS presets):
 
@@ -246,6 +247,14 @@ def _run_child(*args: str) -> dict | list:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def _partial_results() -> dict[tuple[str, str, str], dict | list]:
+    """{(kind, model, size): result} of the children an earlier run finished."""
+    if not PARTIAL.exists():
+        return {}
+    lines = [json.loads(line) for line in PARTIAL.read_text().splitlines() if line.strip()]
+    return {tuple(line["job"]): line["result"] for line in lines if "job" in line}
+
+
 def _mib(n: float) -> str:
     return f"{n / 2**20:,.0f}"
 
@@ -310,6 +319,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-profile", action="store_true")
     parser.add_argument("--imagine-size", default="paper")
     parser.add_argument("--no-imagine", action="store_true")
+    parser.add_argument("--resume", action="store_true",
+                        help="reuse the measurements an interrupted run left in "
+                             f"{PARTIAL.name} (the reference matmul is measured again)")
     parser.add_argument("--child", nargs=3, metavar=("KIND", "MODEL", "SIZE"),
                         help=argparse.SUPPRESS)
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
@@ -320,18 +332,26 @@ def main(argv: list[str] | None = None) -> None:
                 "imagine": lambda: measure_imagine(model, size, 3)}
         answer = json.dumps(jobs[kind]())
         with PARTIAL.open("a") as log:
-            log.write(json.dumps({"kind": kind, "result": json.loads(answer)}) + "\n")
+            log.write(json.dumps({"job": [kind, model, size], "result": json.loads(answer)})
+                      + "\n")
         print(answer)
         return
+    if not args.resume:
+        PARTIAL.unlink(missing_ok=True)
+    done = _partial_results() if args.resume else {}
+
+    def measured(kind: str, model: str, size: str) -> dict | list:
+        if (kind, model, size) in done:
+            return done[(kind, model, size)]
+        return _run_child("--child", kind, model, size, "--updates", str(args.updates))
+
     load = os.getloadavg()
     rate = matmul_rate()
-    updates = [_run_child("--child", "update", m, s, "--updates", str(args.updates))
-               for s in args.sizes for m in args.models]
-    breakdown = [] if args.no_profile else _run_child(
-        "--child", "breakdown", args.profile_model, args.profile_size,
-        "--updates", str(args.updates))
+    updates = [measured("update", m, s) for s in args.sizes for m in args.models]
+    breakdown = [] if args.no_profile else measured("breakdown", args.profile_model,
+                                                    args.profile_size)
     imagine = [] if args.no_imagine else [
-        _run_child("--child", "imagine", m, args.imagine_size) for m in args.models]
+        measured("imagine", m, args.imagine_size) for m in args.models]
     text = report(rate, updates, breakdown, imagine, load, args)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(text)
