@@ -49,6 +49,7 @@ from vsgjax.evaluate import (
     restore_latest,
     summarize,
 )
+from vsgjax.host import allocator_line
 from vsgjax.logger import Logger, Progress, truncate_metrics
 from vsgjax.replay import EpisodeStore, Replay
 from vsgjax.videos import open_loop_video
@@ -432,7 +433,7 @@ def main(argv: list[str] | None = None) -> int:
     logdir = args.logdir or Path("runs") / f"{args.task}-{args.model}-s{args.seed}"
     print(f"vsgjax train: task={config.env.task} model={config.model.name} size={config.size} "
           f"({size_note}) seed={config.train.seed} steps={config.train.steps}", flush=True)
-    print(f"device: {device_line()}\nlogdir: {logdir}", flush=True)
+    print(f"device: {device_line()}\n{allocator_line()}\nlogdir: {logdir}", flush=True)
     try:
         trainer = Trainer(config, logdir, progress=not args.no_progress)
     except ConfigError as error:

@@ -15,7 +15,9 @@ Measured, at batch 16 x length 50 with 64x64x3 images (BBS presets):
   counts each scan body once; the FLOP rate achieved as a fraction of a large float32 matmul's;
 * a breakdown of the update into encoder / dynamics / decoder+heads (each forward+backward),
   with the rate each part reaches: the profile that says where time goes;
-* ``imagine`` throughput (start states x horizon per second) from 800 start states, H = 15.
+* ``imagine`` throughput (start states x horizon per second) from 800 start states, H = 15;
+* the host allocator's effect: the profiled model's update again in a process on glibc's
+  malloc instead of mimalloc (:mod:`vsgjax.host`), with page faults and kernel time per update.
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from vsgjax.host import allocator_active, allocator_env, glibc_env
 
 RESULTS = Path(__file__).parent / "results" / "world_model.md"
 # every child's answer is also appended here, so an interrupted run keeps what it measured
@@ -141,11 +145,13 @@ def measure_update(model: str, size: str, updates: int) -> dict:
     flops = model_flops(lambda s, b, k: api.train_step.__wrapped__(config, s, b, k),
                         state, batch, key)
     times = []
+    usage = resource.getrusage(resource.RUSAGE_SELF)
     for i in range(updates):
         start = time.perf_counter()
         state, metrics, _ = compiled(state, batch, jax.random.PRNGKey(i))
         jax.block_until_ready(state)
         times.append(time.perf_counter() - start)
+    after = resource.getrusage(resource.RUSAGE_SELF)
     return {
         "model": model, "size": size, "params": sum(x.size for x in jax.tree.leaves(state.params)),
         "compile_s": compile_s, "update_s": statistics.median(times),
@@ -154,6 +160,9 @@ def measure_update(model: str, size: str, updates: int) -> dict:
         "arg_bytes": memory.argument_size_in_bytes, "out_bytes": memory.output_size_in_bytes,
         "peak_rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
         "loss": float(metrics["loss"]),
+        "faults_per_update": (after.ru_minflt - usage.ru_minflt) / updates,
+        "kernel_s_per_update": (after.ru_stime - usage.ru_stime) / updates,
+        "mimalloc": allocator_active(),
     }
 
 
@@ -236,10 +245,14 @@ def measure_imagine(model: str, size: str, repeats: int) -> dict:
     return result
 
 
-def _run_child(*args: str) -> dict | list:
-    """Run this module with ``args`` in a fresh process; return its JSON answer."""
+def _run_child(*args: str, glibc: bool = False) -> dict | list:
+    """Run this module with ``args`` in a fresh process; return its JSON answer.
+
+    It runs on mimalloc (:mod:`vsgjax.host`) unless ``glibc`` (the allocator comparison).
+    """
     root = Path(__file__).resolve().parents[2]
     env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env = glibc_env(env) if glibc else dict(env, **allocator_env())
     out = subprocess.run([sys.executable, "-m", "experiments.bench.bench_world_model", *args],
                          capture_output=True, text=True, env=env, cwd=root, check=False)
     if out.returncode != 0:
@@ -260,7 +273,7 @@ def _mib(n: float) -> str:
 
 
 def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: list[dict],
-           load: tuple[float, float, float], args) -> str:
+           allocator: list[tuple[dict, dict]], load: tuple[float, float, float], args) -> str:
     lines = [
         "## World model (CORE-WM)",
         "",
@@ -272,14 +285,18 @@ def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: lis
         "",
         f"Reference: a 2048x2048 float32 matmul in JAX reaches **{rate / 1e9:.1f} GFLOP/s**.",
         "",
+        "Host allocator of every child process: "
+        + ("mimalloc (`vsgjax/host.py`)." if updates and updates[0]["mimalloc"]
+           else "the C library's (mimalloc is not installed)."),
+        "",
         "FLOPs = matmul + convolution FLOPs of the update counted from its jaxpr, every scan "
         "body multiplied by its length, transposed convolutions counted without the "
         "multiplications by inserted zeros. `XLA` = `compiled.cost_analysis()['flops']`, which "
         "counts each scan body once (and includes elementwise work).",
         "",
         "| model | size | params | update (s) | compile (s) | GFLOP / update | XLA GFLOP | "
-        "GFLOP/s | % of matmul | XLA temp MiB | peak RSS MiB |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "GFLOP/s | % of matmul | XLA temp MiB | peak RSS MiB | page faults / update |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in updates:
         achieved = r["flops"] / r["update_s"]
@@ -287,7 +304,7 @@ def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: lis
             f"| {r['model']} | {r['size']} | {r['params'] / 1e6:.1f}M | {r['update_s']:.3f} | "
             f"{r['compile_s']:.1f} | {r['flops'] / 1e9:.1f} | {r['xla_flops'] / 1e9:.1f} | "
             f"{achieved / 1e9:.1f} | {100 * achieved / rate:.0f}% | {_mib(r['temp_bytes'])} | "
-            f"{_mib(r['peak_rss'])} |")
+            f"{_mib(r['peak_rss'])} | {r['faults_per_update']:,.0f} |")
     if breakdown:
         lines += ["", f"Where the time goes ({args.profile_model}, {args.profile_size}; each part "
                   "forward + backward alone, median):", "",
@@ -296,6 +313,19 @@ def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: lis
             achieved = r["flops"] / r["seconds"]
             lines.append(f"| {r['part']} | {r['seconds']:.3f} | {r['flops'] / 1e9:.1f} | "
                          f"{achieved / 1e9:.1f} | {100 * achieved / rate:.0f}% |")
+    if allocator:
+        lines += ["", "Host allocator: the same update in a process on glibc's malloc (no "
+                  "`LD_PRELOAD`) against mimalloc above (`vsgjax/host.py`); kernel time is the "
+                  "process's system CPU time (both cores), mostly zero-filling faulted pages.", "",
+                  "| model | size | update (s) glibc | mimalloc | speed-up | page faults / update "
+                  "glibc | mimalloc | kernel s / update glibc | mimalloc |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for default, tuned in allocator:
+            lines.append(
+                f"| {tuned['model']} | {tuned['size']} | {default['update_s']:.3f} | "
+                f"{tuned['update_s']:.3f} | {default['update_s'] / tuned['update_s']:.2f}x | "
+                f"{default['faults_per_update']:,.0f} | {tuned['faults_per_update']:,.0f} | "
+                f"{default['kernel_s_per_update']:.2f} | {tuned['kernel_s_per_update']:.2f} |")
     if imagine:
         lines += ["", f"Imagination from {START_STATES} start states, horizon {HORIZON} "
                   "(start states x horizon per second): latent rollout under a policy (what the "
@@ -319,6 +349,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-profile", action="store_true")
     parser.add_argument("--imagine-size", default="paper")
     parser.add_argument("--no-imagine", action="store_true")
+    parser.add_argument("--no-allocator", action="store_true",
+                        help="skip the comparison with glibc's malloc")
     parser.add_argument("--resume", action="store_true",
                         help="reuse the measurements an interrupted run left in "
                              f"{PARTIAL.name} (the reference matmul is measured again)")
@@ -328,6 +360,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.child:
         kind, model, size = args.child
         jobs = {"update": lambda: measure_update(model, size, args.updates),
+                "update-glibc": lambda: measure_update(model, size, args.updates),
                 "breakdown": lambda: measure_breakdown(model, size, max(3, args.updates // 2)),
                 "imagine": lambda: measure_imagine(model, size, 3)}
         answer = json.dumps(jobs[kind]())
@@ -343,16 +376,21 @@ def main(argv: list[str] | None = None) -> None:
     def measured(kind: str, model: str, size: str) -> dict | list:
         if (kind, model, size) in done:
             return done[(kind, model, size)]
-        return _run_child("--child", kind, model, size, "--updates", str(args.updates))
+        return _run_child("--child", kind, model, size, "--updates", str(args.updates),
+                          glibc=kind == "update-glibc")
 
     load = os.getloadavg()
     rate = matmul_rate()
     updates = [measured("update", m, s) for s in args.sizes for m in args.models]
     breakdown = [] if args.no_profile else measured("breakdown", args.profile_model,
                                                     args.profile_size)
+    allocator = [] if args.no_allocator or not allocator_env() else [
+        (measured("update-glibc", args.profile_model, size),
+         next(r for r in updates if r["model"] == args.profile_model and r["size"] == size))
+        for size in args.sizes if args.profile_model in args.models]
     imagine = [] if args.no_imagine else [
         measured("imagine", m, args.imagine_size) for m in args.models]
-    text = report(rate, updates, breakdown, imagine, load, args)
+    text = report(rate, updates, breakdown, imagine, allocator, load, args)
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(text)
     print(text)
