@@ -58,7 +58,7 @@ def allocator_line() -> str:
     """One line for a run's header: which allocator this process uses."""
     if allocator_active():
         return "host allocator: mimalloc, keeping freed memory (vsgjax/host.py)"
-    return ("host allocator: the C library's (CPU updates run up to ~1.5x faster with mimalloc: "
+    return ("host allocator: the C library's (CPU updates run 1.5-2x faster with mimalloc: "
             "start with `env $(python vsgjax/host.py) ...`; make does)")
 
 
