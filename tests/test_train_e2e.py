@@ -166,8 +166,9 @@ def test_training_writes_every_artefact(runs, task):
     assert code == 0, err[-3000:]
     lines = out.splitlines()
     assert lines[0].startswith(f"vsgjax train: task={task} model=vsg size=debug")
-    assert lines[1].startswith("device: cpu") and lines[2] == f"logdir: {logdir}"
-    assert lines[3] == "starting a new run"
+    assert lines[1].startswith("device: cpu") and lines[2].startswith("host allocator: ")
+    assert lines[3] == f"logdir: {logdir}"
+    assert lines[4] == "starting a new run"
     config = json.loads((logdir / "config.json").read_text())
     assert config["env"]["task"] == task and config["size"] == "debug"
     records = read_jsonl(logdir / "metrics.jsonl")
@@ -264,7 +265,7 @@ def test_sigkill_then_resume_continues_from_checkpoint_with_replay_and_sigterm_s
     run.send_signal(signal.SIGTERM)
     code, out, err = finish(run)
     assert code == 128 + signal.SIGTERM, err[-3000:]
-    resume_line = out.splitlines()[3]
+    resume_line = out.splitlines()[4]
     match = re.match(r"resuming from ckpt-\d+\.ckpt: env step (\d+), update (\d+), "
                      r"replay (\d+) steps in (\d+) episodes", resume_line)
     assert match, resume_line
