@@ -19,8 +19,9 @@ BATCH, LENGTH, UPDATES, SLOW_EVERY = 2, 3, 3, 2
 slow = pytest.mark.slow
 
 
-def make_agent(model: str, discrete: bool) -> Agent:
-    config = make_config("bbs_basic", model, "debug", [f"ac.slow_critic_every={SLOW_EVERY}"])
+def make_agent(model: str, discrete: bool, alignment: str = "release") -> Agent:
+    config = make_config("bbs_basic", model, "debug", [f"ac.slow_critic_every={SLOW_EVERY}",
+                                                        f"ac.alignment={alignment}"])
     return Agent(config, (64, 64, 3), 3 if discrete else 2, discrete)
 
 
@@ -44,9 +45,9 @@ def make_batch(action_dim: int, discrete: bool, seed: int = 0) -> dict:
 
 
 @functools.cache
-def _updates(model: str, discrete: bool):
+def _updates(model: str, discrete: bool, alignment: str = "release"):
     """(agent, batch, [state_0 .. state_UPDATES], [metrics_1 .. metrics_UPDATES])."""
-    agent = make_agent(model, discrete)
+    agent = make_agent(model, discrete, alignment)
     batch = make_batch(agent.action_dim, discrete)
     states, metrics = [agent.init(jax.random.PRNGKey(0))], []
     for update in range(UPDATES):
@@ -97,14 +98,25 @@ def test_same_seed_gives_identical_state_and_metrics(run):
 
 
 def test_slow_critic_is_copied_every_period_and_held_between(run):
+    """The release: update k copies the critic as it is at its start when k % 2 == 0."""
     _, _, states, _ = run
     params = [state.params for state in states]
     assert _leaves_equal(params[0]["slow_critic"], params[0]["critic"])  # initialised as a copy
-    # update 0 copies (step 0 % 2 == 0), update 1 holds, update 2 copies again
+    # update 0 copies the initial critic, update 1 holds, update 2 copies the critic after 2
+    assert _leaves_equal(params[1]["slow_critic"], params[0]["critic"])
+    assert _leaves_equal(params[2]["slow_critic"], params[0]["critic"])
+    assert _leaves_equal(params[3]["slow_critic"], params[2]["critic"])
+    assert not _leaves_equal(params[3]["slow_critic"], params[3]["critic"])
+
+
+def test_next_state_alignment_copies_the_slow_critic_after_the_update():
+    _, _, states, metrics = _updates("vsg", False, "next_state")
+    params = [state.params for state in states]
+    # update 0 copies its updated critic, update 1 holds, update 2 copies again
     assert _leaves_equal(params[1]["slow_critic"], params[1]["critic"])
     assert _leaves_equal(params[2]["slow_critic"], params[1]["critic"])
-    assert not _leaves_equal(params[2]["slow_critic"], params[2]["critic"])
     assert _leaves_equal(params[3]["slow_critic"], params[3]["critic"])
+    assert all(np.isfinite(value) for value in metrics[0].values())
 
 
 # --- policy_step --------------------------------------------------------------------------------

@@ -18,8 +18,8 @@ FEAT, ACTIONS, HORIZON, GAMMA = 3, 2, 4, 0.9
 
 
 def make_behaviour(discrete=False, **overrides):
-    cfg = BehaviourConfig(horizon=HORIZON, gamma=GAMMA, actor_layers=1, critic_layers=1,
-                          **overrides)
+    cfg = BehaviourConfig(**{"horizon": HORIZON, "gamma": GAMMA, "actor_layers": 1,
+                             "critic_layers": 1, **overrides})
     return bhv.Behaviour(cfg, units=8, action_dim=ACTIONS, discrete=discrete)
 
 
@@ -28,14 +28,14 @@ def toy_world(world_params, action_gradient=1.0):
 
     ``action_gradient`` scales the gradient from the next state into the action (0 cuts it).
     """
-    def rollout(policy, start, key):
+    def rollout(policy, start, key, steps):
         def step(state, step_key):
             action = policy(state, step_key)
             fixed = jax.lax.stop_gradient(action)
             moved = fixed + action_gradient * (action - fixed)
             return jnp.tanh(state @ world_params["W"] + moved @ world_params["U"]), (state, action)
 
-        keys = jax.random.split(key, HORIZON + 1)
+        keys = jax.random.split(key, steps + 1)
         last, (states, actions) = jax.lax.scan(step, start, keys[:-1])
         last_action = policy(last, keys[-1])
         return jnp.concatenate([states, last[None]]), jnp.concatenate([actions, last_action[None]])
@@ -85,34 +85,134 @@ def test_lambda_returns_treat_trailing_axes_as_batch():
         np.testing.assert_allclose(batched[:, column], single, rtol=1e-6)
 
 
-def test_return_weights_are_shifted_cumulative_discounts():
-    discount = jnp.array([0.5, 0.9, 0.8, 0.7])  # γ̂_0 .. γ̂_3 for H = 3; γ̂_0 and γ̂_3 unused
-    np.testing.assert_allclose(bhv.return_weights(discount, 1.0), [1.0, 0.9, 0.72], rtol=1e-6)
+def test_return_weights_are_cumulative_step_discounts():
+    discount = jnp.array([0.5, 0.9, 0.8])  # d_0 .. d_2 of the N = 3 steps; d_2 unused
+    np.testing.assert_allclose(bhv.return_weights(discount, 1.0), [1.0, 0.5, 0.45], rtol=1e-6)
     np.testing.assert_allclose(bhv.return_weights(discount, 0.0), [0.0, 0.0, 0.0])
 
 
-def test_imagined_returns_skip_the_start_reward_and_bootstrap_with_the_slow_critic():
-    """Deterministic states s_t = t + 1 (reward t + 1), constant γ̂ and slow value b."""
-    behaviour, b = make_behaviour(), 2.0
+# A deterministic trajectory: feat_t = (t + 1)/F · 1, so the reward head (the feature sum) reads
+# r_t = t + 1 and the discount head d_t = DISCOUNTS[t]; the slow critic is the constant SLOW and
+# the online critic the constant ONLINE.
+DISCOUNTS, SLOW, ONLINE, LAM = (0.9, 0.5, 0.8, 0.7, 0.6), 2.0, 5.0, 0.95
 
-    def rollout(policy, start, key):
-        feat = jnp.arange(1.0, HORIZON + 2)[:, None] * jnp.ones(FEAT) / FEAT
-        return feat, jax.vmap(policy)(feat, jax.random.split(key, HORIZON + 1))
 
-    world = bhv.WorldFns(rollout, reward=lambda feat: feat.sum(-1),
-                         discount=lambda feat: jnp.full(feat.shape[:-1], GAMMA))
+def counting_world():
+    def rollout(policy, start, key, steps):
+        feat = jnp.arange(1.0, steps + 2)[:, None] * jnp.ones(FEAT) / FEAT
+        return feat, jax.vmap(policy)(feat, jax.random.split(key, steps + 1))
+
+    def discount(feat):
+        return jnp.asarray(DISCOUNTS)[jnp.round(feat.sum(-1)).astype(jnp.int32) - 1]
+
+    return bhv.WorldFns(rollout, reward=lambda feat: feat.sum(-1), discount=discount)
+
+
+def constant_critic(params, value):
+    """The critic's parameters with every weight zero and the output bias ``value``."""
+    critic = jax.tree.map(jnp.zeros_like, params)
+    critic["Dense_1"]["bias"] = jnp.full_like(critic["Dense_1"]["bias"], value)
+    return critic
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def counting_losses(behaviour, actor, critic, slow):
+    """(actor loss, (imagined, metrics)), critic loss, entropies and log-probs on one start."""
+    world, starts = counting_world(), jnp.zeros((1, FEAT))
+    loss, (imagined, metrics) = bhv.actor_loss(actor, behaviour, critic, slow, world, starts,
+                                               jnp.ones(1), jax.random.split(jax.random.PRNGKey(5), 1))
+    policy = behaviour.policy(actor, imagined.feat[0, :-1])
+    critic_value = bhv.critic_loss(critic, behaviour, imagined)[0]
+    return (loss, imagined, critic_value, policy.entropy(),
+            policy.log_prob(imagined.action[0, :-1]))
+
+
+@pytest.mark.parametrize("actor_grad", ["dynamics", "reinforce"])
+def test_release_alignment_matches_a_hand_computation(actor_grad):
+    """H = 4 states s_0..s_3 (3 imagined steps), 3 targets, the start's own reward in V_0."""
+    behaviour = make_behaviour(alignment="release", actor_grad=actor_grad, entropy=0.01)
     params = behaviour.init(jax.random.PRNGKey(0), FEAT)
-    slow = jax.tree.map(jnp.zeros_like, params["critic"])
-    slow["Dense_1"]["bias"] = jnp.full_like(slow["Dense_1"]["bias"], b)
-    imagine = jax.jit(lambda actor, slow: bhv.imagine(behaviour, actor, slow, world,
-                                                      jnp.zeros(FEAT), 1.0, jax.random.PRNGKey(1)))
-    imagined = imagine(params["actor"], slow)
-    lam, expected, following = behaviour.cfg.lam, [], b  # V_H = v_H = b
-    for t in reversed(range(HORIZON)):  # V_t = r_{t+1} + γ((1-λ) b + λ V_{t+1}), r_{t+1} = t + 2
-        following = (t + 2) + GAMMA * ((1 - lam) * b + lam * following)
-        expected.insert(0, following)
-    np.testing.assert_allclose(imagined.returns, expected, rtol=1e-5)
-    np.testing.assert_allclose(imagined.weight, GAMMA ** np.arange(HORIZON), rtol=1e-6)
+    critic, slow = (constant_critic(params["critic"], v) for v in (ONLINE, SLOW))
+    loss, imagined, critic_value, entropy, log_prob = counting_losses(
+        behaviour, params["actor"], critic, slow)
+    assert imagined.feat.shape == (1, HORIZON, FEAT)  # the start included
+    # V_2 = r_2 + d_2·((1-λ)·v_3 + λ·V_3), V_3 = v_3 = 2:  3 + 0.8·2 = 4.6
+    # V_1 = 2 + 0.5·(0.05·2 + 0.95·4.6) = 4.235
+    # V_0 = 1 + 0.9·(0.05·2 + 0.95·4.235) = 4.710925
+    returns = np.array([4.710925, 4.235, 4.6])
+    weight = np.array([1.0, 0.9, 0.9 * 0.5])  # cumprod([1, d_0, d_1])
+    np.testing.assert_allclose(imagined.returns[0], returns, rtol=1e-6)
+    np.testing.assert_allclose(imagined.weight[0], weight, rtol=1e-6)
+    np.testing.assert_allclose(imagined.reward[0], [1.0, 2.0, 3.0], rtol=1e-6)
+    if actor_grad == "dynamics":
+        objective = returns
+    else:  # the REINFORCE baseline is the ONLINE critic (5), not the slow one (2)
+        objective = np.asarray(log_prob) * (returns - ONLINE)
+    expected = -np.mean(weight * (objective + 0.01 * np.asarray(entropy)))
+    np.testing.assert_allclose(loss, expected, rtol=1e-5)
+    # critic: -mean(w · log N(V | 5, 1))
+    expected_critic = np.mean(weight * (0.5 * (returns - ONLINE) ** 2 + 0.5 * np.log(2 * np.pi)))
+    np.testing.assert_allclose(critic_value, expected_critic, rtol=1e-6)
+
+
+def test_next_state_alignment_matches_a_hand_computation():
+    """H = 4 imagined steps, 5 states; V_t pairs r_{t+1} and d_{t+1}; slow critic baseline."""
+    behaviour = make_behaviour(alignment="next_state", actor_grad="reinforce", entropy=0.0)
+    params = behaviour.init(jax.random.PRNGKey(0), FEAT)
+    critic, slow = (constant_critic(params["critic"], v) for v in (ONLINE, SLOW))
+    loss, imagined, _, _, log_prob = counting_losses(behaviour, params["actor"], critic, slow)
+    assert imagined.feat.shape == (1, HORIZON + 1, FEAT)
+    # V_3 = r_4 + d_4·v_4 = 5 + 0.6·2 = 6.2;  V_2 = 4 + 0.7·(0.1 + 0.95·6.2) = 8.193
+    # V_1 = 3 + 0.8·(0.1 + 0.95·8.193) = 9.30668;  V_0 = 2 + 0.5·(0.1 + 0.95·9.30668) = 6.470673
+    returns = np.array([6.470673, 9.30668, 8.193, 6.2])
+    weight = np.array([1.0, 0.5, 0.5 * 0.8, 0.5 * 0.8 * 0.7])  # cumprod([1, d_1, d_2, d_3])
+    np.testing.assert_allclose(imagined.returns[0], returns, rtol=1e-6)
+    np.testing.assert_allclose(imagined.weight[0], weight, rtol=1e-6)
+    expected = -np.mean(weight * np.asarray(log_prob) * (returns - SLOW))
+    np.testing.assert_allclose(loss, expected, rtol=1e-5)
+
+
+def test_conventions_agree_on_a_reward_free_trajectory_up_to_the_bootstrap_shift(world_params,
+                                                                                starts):
+    """No reward and a constant discount: release with H + 1 states and next_state with H steps
+    imagine the same trajectory and give the same critic targets and weights."""
+    world = toy_world(world_params)._replace(
+        reward=lambda feat: jnp.zeros(feat.shape[:-1]),
+        discount=lambda feat: jnp.full(feat.shape[:-1], GAMMA))
+    release = make_behaviour(alignment="release", horizon=HORIZON + 1)
+    next_state = make_behaviour(alignment="next_state", horizon=HORIZON)
+    params = release.init(jax.random.PRNGKey(3), FEAT)
+
+    @functools.partial(jax.jit, static_argnums=0)
+    def imagined(behaviour):
+        return bhv.actor_loss(params["actor"], behaviour, params["critic"], params["slow_critic"],
+                              world, *starts)[1][0]
+
+    a, b = imagined(release), imagined(next_state)
+    np.testing.assert_array_equal(a.feat, b.feat)
+    assert a.returns.shape == b.returns.shape == (5, HORIZON)
+    np.testing.assert_allclose(a.returns, b.returns, rtol=1e-6)
+    np.testing.assert_allclose(a.weight, b.weight, rtol=1e-6)
+    assert float(jnp.abs(a.returns).max()) > 1e-3  # the slow values are not all zero
+
+
+def test_start_states_drop_the_last_step_only_for_the_release_with_a_discount_head():
+    posts = {"z": jnp.arange(6.0).reshape(2, 3)}
+    is_terminal = jnp.array([[False, False, True], [False, True, False]])
+    cases = {("release", True): ([0, 1, 3, 4], [1, 1, 1, 1]),
+             ("release", False): ([0, 1, 2, 3, 4, 5], [1] * 6),
+             ("next_state", True): ([0, 1, 2, 3, 4, 5], [1, 1, 0, 1, 0, 1])}
+    for (alignment, drop_last), (values, continues) in cases.items():
+        flat, cont = bhv.start_states(posts, is_terminal, make_behaviour(alignment=alignment),
+                                      drop_last)
+        np.testing.assert_array_equal(flat["z"], values)
+        np.testing.assert_array_equal(cont, continues)
+
+
+def test_release_horizon_must_leave_an_imagined_step():
+    with pytest.raises(ValueError, match="ac.horizon 1 .*horizon >= 2"):
+        make_behaviour(alignment="release", horizon=1)
+    assert make_behaviour(alignment="next_state", horizon=1).imagined_steps == 1
 
 
 # --- slow critic --------------------------------------------------------------------------------
@@ -145,17 +245,16 @@ def test_unknown_actor_grad_is_an_error_naming_it():
 
 
 @functools.partial(jax.jit, static_argnums=0)
-def actor_loss(behaviour, actor, slow_critic, world_params, starts, action_gradient=1.0):
-    """(loss, (imagined, metrics)) of the actor on the toy world."""
-    return bhv.actor_loss(actor, behaviour, slow_critic, toy_world(world_params, action_gradient),
-                          *starts)
+def actor_loss(behaviour, actor, params, world_params, starts, action_gradient=1.0):
+    """(loss, (imagined, metrics)) of the actor on the toy world (critics from ``params``)."""
+    return bhv.actor_loss(actor, behaviour, params["critic"], params["slow_critic"],
+                          toy_world(world_params, action_gradient), *starts)
 
 
 @functools.partial(jax.jit, static_argnums=0)
 def actor_grads(behaviour, params, world_params, starts, action_gradient):
-    loss_fn = lambda actor: bhv.actor_loss(
-        actor, behaviour, params["slow_critic"], toy_world(world_params, action_gradient),
-        *starts)[0]
+    loss_fn = lambda actor: actor_loss(behaviour, actor, params, world_params, starts,
+                                       action_gradient)[0]
     return jax.grad(loss_fn)(params["actor"])
 
 
@@ -183,30 +282,34 @@ def test_dynamics_gradient_goes_through_the_world_and_reinforce_does_not(world_p
 @functools.partial(jax.jit, static_argnums=0)
 def actor_loss_and_formula(behaviour, params, world_params, starts):
     """The actor loss, and the same loss recomputed here from its imagined trajectory."""
-    loss, (imagined, _) = actor_loss(behaviour, params["actor"], params["slow_critic"],
-                                     world_params, starts)
+    loss, (imagined, _) = actor_loss(behaviour, params["actor"], params, world_params, starts)
     policy = behaviour.policy(params["actor"], imagined.feat[:, :-1])
-    reinforce = policy.log_prob(imagined.action[:, :-1]) * (
-        imagined.returns - imagined.slow_value[:, :-1])
+    baseline = (behaviour.value(params["critic"], imagined.feat[:, :-1]) if behaviour.release
+                else imagined.slow_value[:, :-1])
+    reinforce = policy.log_prob(imagined.action[:, :-1]) * (imagined.returns - baseline)
     mix = behaviour.dynamics_weight
     objective = (mix * imagined.returns + (1 - mix) * reinforce
                  + behaviour.cfg.entropy * policy.entropy())
     return loss, -jnp.mean(imagined.weight * objective)
 
 
+@pytest.mark.parametrize("alignment", ["release", "next_state"])
 @pytest.mark.parametrize("actor_grad", ["dynamics", "reinforce", "both"])
-def test_actor_loss_values_follow_the_selected_objective(world_params, starts, actor_grad):
-    behaviour = make_behaviour(actor_grad=actor_grad, actor_grad_mix=0.25, entropy=0.01)
+def test_actor_loss_values_follow_the_selected_objective(world_params, starts, actor_grad,
+                                                         alignment):
+    behaviour = make_behaviour(actor_grad=actor_grad, actor_grad_mix=0.25, entropy=0.01,
+                               alignment=alignment)
     params = behaviour.init(jax.random.PRNGKey(3), FEAT)
+    params["critic"] = jax.tree.map(lambda x: x + 0.1, params["critic"])  # online != slow
     loss, formula = actor_loss_and_formula(behaviour, params, world_params, starts)
     np.testing.assert_allclose(loss, formula, rtol=1e-5)
 
 
 def test_terminal_start_states_carry_no_weight(world_params, starts):
-    behaviour = make_behaviour(actor_grad="dynamics", actor_grad_mix=0.25, entropy=0.01)
+    behaviour = make_behaviour(actor_grad="dynamics", entropy=0.01, alignment="next_state")
     params = behaviour.init(jax.random.PRNGKey(3), FEAT)
     alive = jnp.array([1.0, 0.0, 1.0, 0.0, 1.0])
-    weights = [actor_loss(behaviour, params["actor"], params["slow_critic"], world_params,
+    weights = [actor_loss(behaviour, params["actor"], params, world_params,
                           (starts[0], cont, starts[2]))[1][0].weight
                for cont in (jnp.ones(5), alive)]
     np.testing.assert_array_equal(weights[1], weights[0] * alive[:, None])
@@ -220,7 +323,7 @@ def test_critic_loss_trains_only_the_critic(world_params, starts):
     params = behaviour.init(jax.random.PRNGKey(3), FEAT)
 
     def loss_fn(actor, world, critic):
-        _, (imagined, _) = bhv.actor_loss(actor, behaviour, params["slow_critic"],
+        _, (imagined, _) = bhv.actor_loss(actor, behaviour, critic, params["slow_critic"],
                                           toy_world(world), *starts)
         return bhv.critic_loss(critic, behaviour, imagined)[0]
 

@@ -21,7 +21,14 @@ from vsgjax.config import (
         (lambda: make_config(model="vsgg"), "'vsgg'", MODELS),
         (lambda: make_config(size="huge"), "'huge'", SIZES),
         (lambda: make_config(overrides=["wm.kl_scael=0.3"]), "'wm.kl_scael'", ("kl_scale",)),
-        (lambda: make_config(overrides=["optim.lr=0.3"]), "'optim.lr'", ("model", "wm", "ac")),
+        (lambda: make_config(overrides=["optimizer.lr=0.3"]), "'optimizer.lr'",
+         ("model", "wm", "ac", "optim")),
+        (lambda: make_config(overrides=["optim.lr=0.3"]), "'optim.lr'", ("weight_decay",)),
+        (lambda: make_config(overrides=["ac.alignment=dreamerv3"]), "'dreamerv3'",
+         ("release", "next_state")),
+        (lambda: make_config(overrides=["optim.weight_decay=l2"]), "'l2'", ("release", "adamw")),
+        (lambda: make_config(overrides=["optim.eps_placement=inside"]), "'inside'",
+         ("release", "optax")),
         (lambda: make_config(overrides=["wm.kl_scale=abc"]), "'abc'", ("float",)),
         (lambda: make_config(overrides=["model.deter=1.5"]), "'1.5'", ("int",)),
         (lambda: make_config(overrides=["wm.kl_masked=maybe"]), "'maybe'", ("bool",)),
@@ -92,7 +99,7 @@ ATARI_PAPER = {
     "wm.gate_kappa": 0.4, "wm.lr": 2e-4, "ac.actor_lr": 4e-5, "ac.critic_lr": 1e-4,
     "wm.discount_head": True, "wm.discount_scale": 5.0, "wm.reward_tanh": True,
     "ac.gamma": 0.999, "ac.entropy": 1e-3, "ac.actor_grad": "reinforce",
-    "train.train_every": 16, "train.prefill": 50_000, "train.steps": 50_000_000,
+    "train.train_every": 16, "train.prefill": 200_000, "train.steps": 200_000_000,
 }
 
 

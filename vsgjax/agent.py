@@ -23,7 +23,7 @@ import optax
 
 from vsgjax import behaviour as bhv
 from vsgjax.config import Config
-from vsgjax.optim import make_optimizer, world_model_optimizer
+from vsgjax.optim import agent_optimizers
 from vsgjax.world_model import WorldModel
 
 POLICY_MODES = ("train", "eval")
@@ -67,12 +67,7 @@ class Agent:
 
     @property
     def optimizers(self) -> dict[str, optax.GradientTransformation]:
-        ac = self.config.ac
-        return {
-            "wm": world_model_optimizer(self.config.wm),
-            "actor": make_optimizer(ac.actor_lr, ac.eps, ac.clip, ac.weight_decay),
-            "critic": make_optimizer(ac.critic_lr, ac.eps, ac.clip, ac.weight_decay),
-        }
+        return agent_optimizers(self.config)
 
     @functools.partial(jax.jit, static_argnums=0)
     def init(self, key: jax.Array) -> AgentState:
@@ -91,49 +86,53 @@ class Agent:
 
     def world_fns(self, wm_params: dict) -> bhv.WorldFns:
         """The world-model callables behaviour learning imagines with (per start state)."""
-        wm, ac = self.world_model, self.config.ac
+        wm = self.world_model
         dyn = wm.dynamics
 
-        def rollout(policy, start, key):
-            states, actions = dyn.imagine(wm_params["dynamics"], policy, start, ac.horizon, key)
+        def rollout(policy, start, key, steps):
+            states, actions = dyn.imagine(wm_params["dynamics"], policy, start, steps, key)
             return jax.vmap(dyn.feat)(states), actions
 
-        return bhv.WorldFns(
-            rollout=rollout,
-            reward=lambda feat: wm.reward_mean(wm_params, feat),
-            discount=lambda feat: ac.gamma * wm.discount_prob(wm_params, feat),
-        )
+        return bhv.WorldFns(rollout=rollout,
+                            reward=lambda feat: wm.reward_mean(wm_params, feat),
+                            discount=lambda feat: wm.discount(wm_params, feat))
 
     @functools.partial(jax.jit, static_argnums=0)
     def train_step(self, state: AgentState, batch: dict, key: jax.Array):
-        """One update of world model, then actor, then critic, then the slow-critic schedule.
+        """One update of world model, then actor, then critic, with the slow-critic schedule.
 
-        The world model trains on ``batch``; its posterior states (all B·T of them, stop-
-        gradient) start the imagination, which uses the freshly updated world model. Returns
+        The world model trains on ``batch``; its posterior states (stop-gradient; see
+        :func:`vsgjax.behaviour.start_states` for which) start the imagination, which uses the
+        freshly updated world model. The slow critic is copied from the critic at the start of
+        the update (``ac.alignment=release``) or after it (``next_state``). Returns
         ``(state, metrics)`` with keys ``wm/*``, ``actor/*``, ``critic/*`` and ``imag/*``.
         """
         wm_key, ac_key = jax.random.split(key)
         params, opt, optimizers = state.params, dict(state.opt), self.optimizers
+        behaviour, every = self.behaviour, self.config.ac.slow_critic_every
         grad_fn = jax.value_and_grad(self.world_model.loss, has_aux=True)
         (_, (wm_metrics, posts)), grads = grad_fn(params["wm"], batch, wm_key)
         wm_params, opt["wm"] = _apply(optimizers["wm"], grads, opt["wm"], params["wm"])
 
-        starts = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), posts)
-        start_continue = 1.0 - batch["is_terminal"].reshape(-1).astype(jnp.float32)
+        slow_critic = params["slow_critic"]
+        if behaviour.release:
+            slow_critic = bhv.update_slow_critic(params["critic"], slow_critic, state.step, every)
+        starts, start_continue = bhv.start_states(posts, batch["is_terminal"], behaviour,
+                                                  drop_last=self.config.wm.discount_head)
         keys = jax.random.split(ac_key, start_continue.shape[0])
         grad_fn = jax.value_and_grad(bhv.actor_loss, has_aux=True)
         (_, (imagined, ac_metrics)), actor_grads = grad_fn(
-            params["actor"], self.behaviour, params["slow_critic"], self.world_fns(wm_params),
-            starts, start_continue, keys)
+            params["actor"], behaviour, params["critic"], slow_critic,
+            self.world_fns(wm_params), starts, start_continue, keys)
         actor, opt["actor"] = _apply(optimizers["actor"], actor_grads, opt["actor"],
                                      params["actor"])
 
         grad_fn = jax.value_and_grad(bhv.critic_loss, has_aux=True)
-        (_, critic_metrics), critic_grads = grad_fn(params["critic"], self.behaviour, imagined)
+        (_, critic_metrics), critic_grads = grad_fn(params["critic"], behaviour, imagined)
         critic, opt["critic"] = _apply(optimizers["critic"], critic_grads, opt["critic"],
                                        params["critic"])
-        slow_critic = bhv.update_slow_critic(critic, params["slow_critic"], state.step,
-                                             self.config.ac.slow_critic_every)
+        if not behaviour.release:
+            slow_critic = bhv.update_slow_critic(critic, slow_critic, state.step, every)
 
         metrics = {f"wm/{name}": value for name, value in wm_metrics.items()}
         metrics.update(ac_metrics, **critic_metrics)

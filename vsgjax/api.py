@@ -50,7 +50,7 @@ def init(config: Config, key: jax.Array, obs_shape: tuple[int, int, int] = (64, 
 @functools.partial(jax.jit, static_argnames="model")
 def _init(model: WorldModel, key: jax.Array) -> TrainState:
     params = model.init(key)
-    opt_state = world_model_optimizer(model.config.wm).init(params)
+    opt_state = world_model_optimizer(model.config).init(params)
     return TrainState(params, opt_state, jnp.zeros((), jnp.int32))
 
 
@@ -63,7 +63,7 @@ def train_step(config: Config, state: TrainState, batch: dict, key: jax.Array):
     model = WorldModel(config, batch["image"].shape[2:], batch["action"].shape[-1])
     grad_fn = jax.value_and_grad(model.loss, has_aux=True)
     (_, (metrics, posts)), grads = grad_fn(state.params, batch, key)
-    updates, opt_state = world_model_optimizer(config.wm).update(grads, state.opt_state,
+    updates, opt_state = world_model_optimizer(config).update(grads, state.opt_state,
                                                                  state.params)
     params = optax.apply_updates(state.params, updates)
     metrics = dict(metrics, grad_norm=optax.tree.norm(grads))
@@ -133,5 +133,5 @@ def _imagine_flat(model: WorldModel, params: dict, start: Any, H: int, key: jax.
         "states": states, "actions": actions, "feats": feats,
         "images": float_to_image(means), "image_means": means,
         "rewards": model.reward_mean(params, feats),
-        "discounts": model.discount_prob(params, feats),
+        "discounts": model.discount(params, feats),
     }

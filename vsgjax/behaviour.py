@@ -1,41 +1,68 @@
 """Imagination actor-critic (spec section 4): λ-returns, actor and critic losses, slow critic.
 
 Everything here is a pure function of explicit parameters and PRNG keys, written PER START STATE
-(unbatched) and vmapped by the caller over the B·T posterior start states. The world model enters
+(unbatched) and vmapped by the caller over the posterior start states. The world model enters
 only through three callables, so this module does not depend on how the world model is built:
 
-    rollout(policy, start, key) -> (feat [H+1, F], action [H+1, A])   # the dynamics' imagine()
+    rollout(policy, start, key, steps) -> (feat [steps+1, F], action [steps+1, A])  # imagine()
     reward(feat [..., F]) -> [...]       # mean of the reward head
-    discount(feat [..., F]) -> [...]     # γ̂ = γ·P(continue) with a discount head, else γ
+    discount(feat [..., F]) -> [...]     # predicted discount d(s) (γ without a discount head)
 
-TIMESTEP ALIGNMENT (one imagined trajectory, horizon H, H+1 states; t indexes states)::
+Two timestep conventions, ``ac.alignment``. Both reduce to one aligned triple per target t,
+(r_t, d_t, v_{t+1}) = the reward and discount of the step s_t -> s_{t+1} and the slow value at
+its end, from which returns and weights are computed the same way::
+
+    V_t = r_t + d_t·((1 − λ)·v_{t+1} + λ·V_{t+1}),  V_N := v_N     (N targets, t = 0..N-1)
+    w_t = sg(c · Π_{k<t} d_k)
+
+RELEASE (the default: the authors' release, DreamerV2's ImagBehavior). H states per start, the
+start included (H − 1 = 14 prior steps); every head is read at the state itself::
+
+    t               0        1        2      ...   H-2       H-1
+    state           s_0 ---> s_1 ---> s_2    ...   s_H-2 --> s_H-1     s_0 = sg(posterior)
+    action          a_0      a_1      a_2    ...   a_H-2    (a_H-1)    a_t = π(sg(feat_t))
+    reward head     r_0      r_1      r_2    ...   r_H-2    (r_H-1)    r_0: the start's own
+    discount head   d_0      d_1      d_2    ...   d_H-2    (d_H-1)    head mean, no extra γ
+    slow value     (v_0)     v_1      v_2    ...   v_H-2     v_H-1     v_H-1 bootstraps
+    λ-return        V_0      V_1      V_2    ...   V_H-2     -         H − 1 = 14 targets
+    weight          1        d_0    d_0·d_1  ...   Π_{k<H-2} d_k       c = 1
+    baseline        v°_0     v°_1     v°_2   ...   v°_H-2              v° = the ONLINE critic
+
+    V_t = r_t + d_t·((1−λ)·v_{t+1} + λ·V_{t+1}),  V_{H-1} := v_{H-1}
+    = lambda_returns(reward[:-1], discount[:-1], value[1:]);  w = cumprod([1, d_0, .., d_{H-3}])
+
+The discount head is trained on γ·(1 − is_terminal) (so d_t already holds γ); start states drop
+the batch's last time step when a discount head exists (it may be terminal); the slow critic is
+copied from the critic at the START of every ``ac.slow_critic_every``-th update.
+
+NEXT_STATE ("reward belongs to the state it arrives at", DreamerV3's convention, matching the
+replay's "reward[t] is received on arriving at obs t"). H + 1 states, H prior steps::
 
     t               0        1        2      ...   H-1       H
     state           s_0 ---> s_1 ---> s_2    ...   s_H-1 --> s_H     s_0 = sg(posterior)
     action          a_0      a_1      a_2    ...   a_H-1    (a_H)    a_t = π(sg(feat_t))
     reward head    (r_0)     r_1      r_2    ...   r_H-1     r_H     r_t: for ARRIVING at s_t
     discount head  (γ̂_0)     γ̂_1      γ̂_2    ...   γ̂_H-1     γ̂_H     γ̂_t = γ·P(s_t not terminal)
-    slow value      v_0      v_1      v_2    ...   v_H-1     v_H     v_H bootstraps
-    λ-return        V_0      V_1      V_2    ...   V_H-1     -       H returns, t = 0..H-1
-    weight          w_0=c    w_1      w_2    ...   w_H-1     -       w_t = c·Π_{k=1..t} γ̂_k
-    (parenthesised entries are computed but unused)
+    slow value     (v_0)     v_1      v_2    ...   v_H-1     v_H     v_H bootstraps
+    λ-return        V_0      V_1      V_2    ...   V_H-1     -       H targets
+    weight          c        c·γ̂_1  c·γ̂_1·γ̂_2 ... c·Π_{k=1..H-1} γ̂_k    c = 1 − is_terminal(s_0)
+    baseline        v_0      v_1      v_2    ...   v_H-1             the slow critic
 
-    V_t = r_{t+1} + γ̂_{t+1}·((1−λ)·v_{t+1} + λ·V_{t+1}),  with V_H := v_H
-    i.e. lambda_returns(reward[1:], discount[1:], value[1:]) over t = 0..H-1 (r_0, γ̂_0 unused).
-    w = sg(c · cumprod([1, γ̂_1, ..., γ̂_{H-1}]))  (the spec's cumprod([1, γ̂_1..])): w_t is the
-    predicted probability that s_t is still in the episode, times γ^t. c = 1 − is_terminal of the
-    start state from the replay batch: a terminal start state has no decision to make, so its
-    trajectory gets no weight (DreamerV2 likewise uses the replay's true first discount).
+    V_t = r_{t+1} + γ̂_{t+1}·((1−λ)·v_{t+1} + λ·V_{t+1}),  V_H := v_H
+    = lambda_returns(reward[1:], discount[1:], value[1:])
 
-    critic:  v(sg(feat_t)) regresses sg(V_t) with weight w_t,               t = 0..H-1
-    actor:   π(·|sg(feat_t)) that produced a_t, objective at t:             t = 0..H-1
-             dynamics  → V_t (gradient flows through a_t, s_{t+1}, ..., into r, γ̂ and v)
-             reinforce → log π(sg(a_t)|feat_t) · sg(V_t − v_t)    (slow critic as the baseline)
+Here the start state's own reward (which no imagined action can change) is in no return, every
+posterior starts a trajectory, a terminal start gets weight 0, and the slow critic is copied
+from the critic after the update (after updates 1, 1 + N, ...).
+(parenthesised entries are computed but unused.)
+
+Both conventions, for targets t = 0..N-1:
+
+    critic:  v(sg(feat_t)) regresses sg(V_t) with weight w_t
+    actor:   π(·|sg(feat_t)) that produced a_t, objective at t:
+             dynamics  → V_t (gradient flows through a_t, s_{t+1}, ..., into r, d and v)
+             reinforce → log π(sg(a_t)|feat_t) · sg(V_t − baseline_t)
              plus η·entropy(π(·|feat_t)); loss = −mean_t(w_t · objective_t)
-
-This is the "reward belongs to the state it arrives at" convention of the replay batch (reward[t]
-is received on arriving at obs t), which DreamerV3 also uses. DreamerV2 instead pairs r_t and γ̂_t
-with V_t (so V_0 includes the reward of the start state, which no imagined action can change).
 """
 
 from __future__ import annotations
@@ -48,12 +75,11 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import ndtri
 
-from vsgjax.config import BehaviourConfig
+from vsgjax.config import ACTOR_GRADS, ALIGNMENTS, BehaviourConfig
 from vsgjax.networks import MLP, normal_log_prob
 
 sg = jax.lax.stop_gradient
 
-ACTOR_GRADS = ("auto", "dynamics", "reinforce", "both")
 TRUNC_CLIP = 1e-6  # samples are clipped to [-1 + clip, 1 - clip] so log_prob stays finite
 TAIL = 1e-7  # inverse-CDF levels are kept in [TAIL, 1 - TAIL] so the sample stays finite
 
@@ -170,6 +196,32 @@ class Behaviour:
             raise ValueError(f"ac.actor_grad_mix must lie in [0, 1], got {self.cfg.actor_grad_mix}")
         if self.action_dim < 1:
             raise ValueError(f"action_dim must be positive, got {self.action_dim}")
+        if self.cfg.alignment not in ALIGNMENTS:
+            raise ValueError(f"unknown ac.alignment {self.cfg.alignment!r}; "
+                             f"valid: {', '.join(ALIGNMENTS)}")
+        if self.imagined_steps < 1:
+            raise ValueError(f"ac.horizon {self.cfg.horizon} leaves no imagined step with "
+                             f"ac.alignment={self.cfg.alignment}; valid: horizon >= "
+                             f"{2 if self.release else 1}")
+
+    @property
+    def release(self) -> bool:
+        """Whether the release's timestep convention is used (see the module docstring)."""
+        return self.cfg.alignment == "release"
+
+    @property
+    def imagined_steps(self) -> int:
+        """Prior steps per start: H − 1 (release: H states, the start included) or H."""
+        return self.cfg.horizon - 1 if self.release else self.cfg.horizon
+
+    def step_terms(self, reward: jax.Array, discount: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """(r_t, d_t) of each step s_t -> s_{t+1} from the heads read at every state.
+
+        release: the heads at s_t (``[:-1]``); next_state: the heads at s_{t+1} (``[1:]``).
+        """
+        if self.release:
+            return reward[:-1], discount[:-1]
+        return reward[1:], discount[1:]
 
     @property
     def dynamics_weight(self) -> float:
@@ -217,13 +269,14 @@ class Behaviour:
 
 def lambda_returns(reward: jax.Array, discount: jax.Array, value: jax.Array,
                    lam: float) -> jax.Array:
-    """λ-returns over the time axis 0, aligned on the NEXT state (see the module diagram).
+    """λ-returns over the time axis 0 from the aligned step terms (see the module docstring).
 
-    With ``reward[t] = r_{t+1}``, ``discount[t] = γ̂_{t+1}``, ``value[t] = v_{t+1}`` (t = 0..H-1)::
+    ``reward[t]``, ``discount[t]``: those of the step s_t -> s_{t+1}; ``value[t] = v_{t+1}``,
+    the value at the step's end (t = 0..N-1)::
 
-        V_t = r_{t+1} + γ̂_{t+1}·((1 − λ)·v_{t+1} + λ·V_{t+1}),   V_H = v_H = value[-1]
+        V_t = reward[t] + discount[t]·((1 − λ)·value[t] + λ·V_{t+1}),   V_N = value[-1]
 
-    λ = 1 gives the discounted Monte-Carlo return bootstrapped with v_H, λ = 0 the one-step
+    λ = 1 gives the discounted Monte-Carlo return bootstrapped with v_N, λ = 0 the one-step
     TD target. Extra trailing axes are batch axes.
     """
     def step(next_return, inputs):
@@ -236,30 +289,48 @@ def lambda_returns(reward: jax.Array, discount: jax.Array, value: jax.Array,
 
 
 def return_weights(discount: jax.Array, start_continue: jax.Array) -> jax.Array:
-    """w_t = sg(c·Π_{k=1..t} γ̂_k) for t = 0..H-1 from the H+1 predicted discounts."""
+    """w_t = sg(c·Π_{k<t} discount[k]) for the N targets, from the aligned step discounts [N]."""
     ones = jnp.ones_like(discount[:1])
-    return sg(start_continue * jnp.cumprod(jnp.concatenate([ones, discount[1:-1]]), axis=0))
+    return sg(start_continue * jnp.cumprod(jnp.concatenate([ones, discount[:-1]]), axis=0))
 
 
 def update_slow_critic(critic, slow_critic, step: jax.Array, every: int):
     """Hard copy critic → slow critic when ``step`` (updates done before this one) is a multiple
-    of ``every`` (so after the 1st, (every+1)-th, ... update, as DreamerV2); else unchanged."""
+    of ``every``; else unchanged. The release calls it before the update with the critic as it
+    is (so the copy at update k = 100 holds the critic after 100 updates); next_state calls it
+    after the critic's update (the critic after updates 1, 101, ...)."""
     copy = step % every == 0
     return jax.tree.map(lambda c, s: jnp.where(copy, c, s), critic, slow_critic)
+
+
+def start_states(posts, is_terminal: jax.Array, behaviour: Behaviour, drop_last: bool):
+    """Flattened start states and their continue flags c from [B, T] posteriors.
+
+    release: every posterior except, when ``drop_last`` (a discount head exists), the last time
+    step (B·(T − 1) starts, c = 1); next_state: all B·T posteriors, c = 1 − is_terminal.
+    """
+    if behaviour.release and drop_last:
+        posts = jax.tree.map(lambda x: x[:, :-1], posts)
+        is_terminal = is_terminal[:, :-1]
+    flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), posts)
+    start_continue = 1.0 - is_terminal.reshape(-1).astype(jnp.float32)
+    if behaviour.release:
+        start_continue = jnp.ones_like(start_continue)
+    return flat, start_continue
 
 
 # --- imagination and losses ---------------------------------------------------------------------
 
 class Imagined(NamedTuple):
-    """One imagined trajectory with everything the losses need (shapes for horizon H)."""
+    """One imagined trajectory with everything the losses need (S = N + 1 states, N targets)."""
 
-    feat: jax.Array  # [H+1, F]
-    action: jax.Array  # [H+1, A]; action[H] is unused
-    reward: jax.Array  # [H+1]; reward[0] unused
-    discount: jax.Array  # [H+1]; discount[0] unused
-    slow_value: jax.Array  # [H+1]
-    returns: jax.Array  # [H]
-    weight: jax.Array  # [H], stop-gradient
+    feat: jax.Array  # [S, F]
+    action: jax.Array  # [S, A]; action[t] was taken in state t, action[-1] is unused
+    reward: jax.Array  # [N]; r_t of the step s_t -> s_{t+1} (aligned, see the module docstring)
+    discount: jax.Array  # [N]; d_t of that step
+    slow_value: jax.Array  # [S]
+    returns: jax.Array  # [N]
+    weight: jax.Array  # [N], stop-gradient
 
 
 class WorldFns(NamedTuple):
@@ -272,8 +343,9 @@ class WorldFns(NamedTuple):
 
 def imagine(behaviour: Behaviour, actor_params, slow_critic_params, world: WorldFns, start,
             start_continue: jax.Array, key: jax.Array) -> Imagined:
-    """Roll the prior H steps from ``start`` (stop-gradient) with actions sampled from the actor
-    (which sees stop-gradient features, as DreamerV2), then compute returns and weights.
+    """Roll the prior ``behaviour.imagined_steps`` steps from ``start`` (stop-gradient) with
+    actions sampled from the actor (which sees stop-gradient features, as DreamerV2), then
+    compute returns and weights in the configured alignment.
 
     Gradients w.r.t. ``actor_params`` flow through the sampled actions into every later state,
     reward, discount and slow value (dynamics backprop); the slow critic's parameters are
@@ -282,48 +354,55 @@ def imagine(behaviour: Behaviour, actor_params, slow_critic_params, world: World
     def policy(feat, policy_key):
         return behaviour.policy(actor_params, sg(feat)).sample(policy_key)
 
-    feat, action = world.rollout(policy, jax.tree.map(sg, start), key)
-    reward, discount = world.reward(feat), world.discount(feat)
+    feat, action = world.rollout(policy, jax.tree.map(sg, start), key, behaviour.imagined_steps)
+    reward, discount = behaviour.step_terms(world.reward(feat), world.discount(feat))
     slow_value = behaviour.value(sg(slow_critic_params), feat)
-    returns = lambda_returns(reward[1:], discount[1:], slow_value[1:], behaviour.cfg.lam)
+    returns = lambda_returns(reward, discount, slow_value[1:], behaviour.cfg.lam)
     return Imagined(feat, action, reward, discount, slow_value, returns,
                     return_weights(discount, start_continue))
 
 
-def actor_objective(behaviour: Behaviour, actor_params, imagined: Imagined) -> tuple:
-    """Per-step actor objective for t = 0..H-1 (to be maximised) and the policy entropy."""
-    policy = behaviour.policy(actor_params, sg(imagined.feat[:-1]))
+def actor_objective(behaviour: Behaviour, actor_params, baseline_params,
+                    imagined: Imagined) -> tuple:
+    """Per-step actor objective for the N targets (to be maximised) and the policy entropy.
+
+    ``baseline_params``: the critic whose value is REINFORCE's baseline (release: the online
+    critic; next_state: the slow critic).
+    """
+    feat = sg(imagined.feat[:-1])
+    policy = behaviour.policy(actor_params, feat)
     mix = behaviour.dynamics_weight
     objective = jnp.zeros_like(imagined.returns)
     if mix > 0.0:
         objective += mix * imagined.returns
     if mix < 1.0:
-        advantage = sg(imagined.returns - imagined.slow_value[:-1])
+        advantage = sg(imagined.returns - behaviour.value(sg(baseline_params), feat))
         objective += (1.0 - mix) * policy.log_prob(sg(imagined.action[:-1])) * advantage
     entropy = policy.entropy()
     return objective + behaviour.cfg.entropy * entropy, entropy
 
 
-def actor_loss(actor_params, behaviour: Behaviour, slow_critic_params, world: WorldFns, starts,
-               start_continue: jax.Array, keys: jax.Array) -> tuple:
+def actor_loss(actor_params, behaviour: Behaviour, critic_params, slow_critic_params,
+               world: WorldFns, starts, start_continue: jax.Array, keys: jax.Array) -> tuple:
     """−mean over starts and t of w_t·objective_t; vmapped over the leading axis of ``starts``.
 
     With pure REINFORCE the imagined trajectory is built from stop-gradient actor parameters
     (no gradient is needed through the dynamics). Returns (loss, (imagined, metrics)).
     """
     rollout_params = actor_params if behaviour.dynamics_weight > 0.0 else sg(actor_params)
+    baseline_params = critic_params if behaviour.release else slow_critic_params
 
     def one_start(start, cont, key):
         imagined = imagine(behaviour, rollout_params, slow_critic_params, world, start, cont, key)
-        objective, entropy = actor_objective(behaviour, actor_params, imagined)
+        objective, entropy = actor_objective(behaviour, actor_params, baseline_params, imagined)
         return -jnp.mean(imagined.weight * objective), (imagined, entropy)
 
     losses, (imagined, entropy) = jax.vmap(one_start)(starts, start_continue, keys)
     metrics = {
         "actor/loss": losses.mean(),
         "actor/entropy": entropy.mean(),
-        "imag/reward": imagined.reward[:, 1:].mean(),
-        "imag/discount": imagined.discount[:, 1:].mean(),
+        "imag/reward": imagined.reward.mean(),
+        "imag/discount": imagined.discount.mean(),
         "imag/return": imagined.returns.mean(),
         "imag/weight": imagined.weight.mean(),
         "critic/slow_value": imagined.slow_value.mean(),
@@ -332,7 +411,7 @@ def actor_loss(actor_params, behaviour: Behaviour, slow_critic_params, world: Wo
 
 
 def critic_loss(critic_params, behaviour: Behaviour, imagined: Imagined) -> tuple:
-    """−mean(w_t · log N(sg(V_t) | v(sg(feat_t)), 1)) over starts and t = 0..H-1.
+    """−mean(w_t · log N(sg(V_t) | v(sg(feat_t)), 1)) over starts and the N targets.
 
     Features, targets and weights are stop-gradient, so this loss trains the critic only.
     """

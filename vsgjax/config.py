@@ -27,6 +27,13 @@ from dataclasses import dataclass, field, fields, replace
 MODELS = ("dreamerv1", "dreamerv2", "vsg", "svsg", "ssm")
 SIZES = ("paper", "small", "debug")
 DOMAINS = ("bbs", "dmc", "atari")
+ALIGNMENTS = ("release", "next_state")  # ac.alignment: see vsgjax/behaviour.py
+ACTOR_GRADS = ("auto", "dynamics", "reinforce", "both")
+EPS_PLACEMENTS = ("release", "optax")  # optim.eps_placement: see vsgjax/optim.py
+WEIGHT_DECAYS = ("release", "adamw")  # optim.weight_decay: see vsgjax/optim.py
+# String keys whose values are names from a fixed list (checked when a config is built).
+CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS,
+           "optim.eps_placement": EPS_PLACEMENTS, "optim.weight_decay": WEIGHT_DECAYS}
 
 
 class ConfigError(ValueError):
@@ -78,7 +85,8 @@ class WorldModelConfig:
 class BehaviourConfig:
     """Imagination actor-critic (spec section 4)."""
 
-    horizon: int = 15
+    alignment: str = "release"  # "release" (the authors' ImagBehavior) or "next_state"
+    horizon: int = 15  # release: H states per start, the start included; next_state: H steps
     gamma: float = 0.99
     lam: float = 0.95
     actor_layers: int = 4
@@ -93,6 +101,17 @@ class BehaviourConfig:
     eps: float = 1e-5
     clip: float = 100.0
     weight_decay: float = 1e-6
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """The update rule shared by the world-model, actor and critic optimizers (vsgjax/optim.py).
+
+    Rates stay in their sections (``wm.lr``, ``wm.eps``, ``wm.weight_decay``, ``ac.*``).
+    """
+
+    eps_placement: str = "release"  # TF's Adam: eps added to sqrt(v); "optax": to sqrt(v-hat)
+    weight_decay: str = "release"  # var <- (1 - wd) var after the step; "adamw": lr * wd
 
 
 @dataclass(frozen=True)
@@ -117,7 +136,8 @@ class TrainConfig:
     prefill: int = 10_000  # env steps of random actions before training
     replay_capacity: int = 2_000_000  # in stored steps
     oversample_ends: bool = False
-    eval_every: int = 100_000  # env steps
+    pretrain: int = 0  # updates made once, right after prefill (before the train ratio applies)
+    eval_every: int = 100_000  # env steps; the first evaluation runs when prefill ends
     eval_episodes: int = 10
     log_every: int = 1_000  # env steps
     ckpt_every: int = 1_000  # updates
@@ -131,6 +151,7 @@ class Config:
     model: ModelConfig = field(default_factory=ModelConfig)
     wm: WorldModelConfig = field(default_factory=WorldModelConfig)
     ac: BehaviourConfig = field(default_factory=BehaviourConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
     env: EnvConfig = field(default_factory=EnvConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
@@ -151,7 +172,8 @@ _DOMAIN = {
         "ac.actor_lr": 8e-5, "ac.critic_lr": 2e-4, "ac.gamma": 0.99, "ac.entropy": 2e-3,
         "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
         "train.batch": 16, "train.train_every": 5, "train.prefill": 10_000,
-        "train.steps": 2_500_000, "train.eval_every": 100_000,
+        "train.oversample_ends": True, "train.pretrain": 1,
+        "train.steps": 2_500_000, "train.eval_every": 50_000, "train.eval_episodes": 10,
     },
     "dmc": {
         "env.action_repeat": 2, "env.time_limit": 1000,
@@ -165,7 +187,8 @@ _DOMAIN = {
         "ac.actor_lr": 8e-5, "ac.critic_lr": 8e-5, "ac.gamma": 0.99, "ac.entropy": 1e-4,
         "ac.actor_layers": 4, "ac.critic_layers": 3, "ac.weight_decay": 0.0,
         "train.batch": 50, "train.train_every": 5, "train.prefill": 2500,
-        "train.steps": 1_000_000, "train.eval_every": 10_000,
+        "train.oversample_ends": False, "train.pretrain": 100,
+        "train.steps": 1_000_000, "train.eval_every": 10_000, "train.eval_episodes": 1,
     },
     "atari": {
         "env.action_repeat": 4, "env.time_limit": 108_000, "env.grayscale": True,
@@ -180,8 +203,12 @@ _DOMAIN = {
         "ac.actor_lr": 4e-5, "ac.critic_lr": 1e-4, "ac.gamma": 0.999, "ac.entropy": 1e-3,
         "ac.actor_grad": "reinforce",
         "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
-        "train.batch": 16, "train.train_every": 16, "train.prefill": 50_000,
-        "train.steps": 50_000_000, "train.eval_every": 250_000,
+        # DreamerV2's Atari counts agent steps (x4 frames); here every count is in env steps
+        # (frames): 5e7 agent steps, prefill 5e4, eval every 2.5e5 (train_every stays in agent
+        # steps, as everywhere).
+        "train.batch": 16, "train.train_every": 16, "train.prefill": 200_000,
+        "train.oversample_ends": True, "train.pretrain": 1,
+        "train.steps": 200_000_000, "train.eval_every": 1_000_000, "train.eval_episodes": 1,
     },
 }
 
@@ -196,6 +223,7 @@ _MODEL = {
 
 _DOMAIN_MODEL = {
     ("bbs", "svsg"): {"wm.kl_free": 1.0},
+    ("bbs", "dreamerv1"): {"wm.kl_free": 1.0, "model.stoch": 32},  # bringbackshapes_gaussian
     ("dmc", "dreamerv1"): {"model.deter": 200, "model.hidden": 200},
 }
 
@@ -215,7 +243,7 @@ _SIZE = {
         "wm.mlp_layers": 1, "wm.mlp_units": 32, "wm.reward_layers": 1,
         "wm.discount_layers": 1, "ac.actor_layers": 1, "ac.critic_layers": 1,
         "ac.horizon": 5, "train.batch": 4, "train.length": 10, "train.prefill": 100,
-        "train.steps": 400, "train.train_every": 10, "train.eval_every": 200,
+        "train.steps": 400, "train.train_every": 10, "train.pretrain": 1, "train.eval_every": 200,
         "train.eval_episodes": 1, "train.log_every": 50, "train.ckpt_every": 5,
         "train.video_every": 200, "train.replay_capacity": 10_000,
     },
@@ -289,6 +317,8 @@ def apply_values(config: Config, values: dict) -> Config:
         section, name = _split_key(key)
         kind = _field_type(key)
         value = _coerce(key, value, kind)
+        if key in CHOICES and value not in CHOICES[key]:
+            raise ConfigError(f"config key {key!r} got {value!r}; valid: {', '.join(CHOICES[key])}")
         config = replace(config, **{section: replace(getattr(config, section), **{name: value})})
     return config
 

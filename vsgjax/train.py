@@ -6,12 +6,14 @@
 The loop, with the train ratio of the spec (one update per ``train.train_every`` agent steps)::
 
     prefill: random actions until train.prefill env steps AND the replay holds a sequence
+    then train.pretrain updates at once (the release's pretraining), and an evaluation
     until train.steps env steps:
         collect a chunk of agent steps (policy on device, envs on host)   -> replay, episodes/
-        run the updates now due (1 + agent steps since prefill // train_every in total)
+        run the updates now due (pretrain + 1 + agent steps since prefill // train_every)
         every log_every env steps   -> metrics.jsonl, TensorBoard, progress bar
         every eval_every env steps  -> eval episodes: scores.jsonl, eval_episodes.jsonl,
-                                       videos/ (at the first eval after every video_every)
+        (counted from the end of        videos/ (at the first eval after every video_every)
+         prefill, as the release)
         every ckpt_every updates, on SIGINT/SIGTERM and at the end -> checkpoints/
 
 Env steps count action repeat (agent steps x ``env.action_repeat``). Rerunning the same command
@@ -137,7 +139,7 @@ class Counters:
     episodes: int = 0
     train_start: int = -1  # agent step at which training began (-1 while prefilling)
     next_log: int = 0
-    next_eval: int = 0  # set to train.eval_every when a run starts
+    next_eval: int = 0  # the end of prefill, then every train.eval_every env steps after it
     next_video: int = 0
     last_eval: int = -1  # env step of the latest evaluation
     last_ckpt_updates: int = 0
@@ -146,6 +148,11 @@ class Counters:
 def next_multiple(value: int, every: int) -> int:
     """The smallest multiple of ``every`` strictly above ``value``."""
     return (value // every + 1) * every
+
+
+def next_on_grid(origin: int, value: int, every: int) -> int:
+    """The smallest ``origin + k·every`` (k >= 1) strictly above ``value``."""
+    return origin + max(1, next_multiple(value - origin, every) // every) * every
 
 
 def env_seed(seed: int, agent_steps: int) -> int:
@@ -186,7 +193,7 @@ class Trainer:
         self.scores = {"xs": [], "ys": []}
         if restored is None:
             self.state = self.agent.init(self.key)
-            self.counters = Counters(next_eval=train.eval_every)
+            self.counters = Counters()
             self.key = jax.random.fold_in(self.key, 1)
         else:
             self._load(restored)
@@ -310,14 +317,16 @@ class Trainer:
         """The updates owed at the train ratio (the first one as soon as prefill ends)."""
         if self.prefilling:
             return
-        c = self.counters
+        c, train = self.counters, self.config.train
         if c.train_start < 0:
             c.train_start = c.agent_steps
+            c.next_eval = self.env_steps  # the release evaluates when training starts
+            pretrain = f", {train.pretrain} pretraining updates" if train.pretrain else ""
             self.progress.write(
                 f"prefill done at env step {self.env_steps} ({self.replay.num_steps} steps in "
-                "replay); compiling the update (once per process; tens of seconds on a CPU), "
-                "then training")
-        due = 1 + (c.agent_steps - c.train_start) // self.config.train.train_every
+                "replay); compiling the update (once per process; tens of seconds on a CPU)"
+                f"{pretrain}, then training")
+        due = train.pretrain + 1 + (c.agent_steps - c.train_start) // train.train_every
         while c.updates < due:
             self.update()
 
@@ -367,9 +376,10 @@ class Trainer:
         self._last_log_time, self._last_log_step = now, self.env_steps
 
     def maybe_evaluate(self) -> None:
-        if self.env_steps >= self.counters.next_eval:
+        c = self.counters
+        if c.train_start >= 0 and self.env_steps >= c.next_eval:
             self.evaluate()
-            self.counters.next_eval = next_multiple(self.env_steps, self.config.train.eval_every)
+            c.next_eval = next_on_grid(c.next_eval, self.env_steps, self.config.train.eval_every)
 
     def evaluate(self) -> None:
         """``eval_episodes`` episodes of the actor's mode -> scores, episode metrics, videos."""

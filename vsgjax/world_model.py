@@ -2,6 +2,9 @@
 
     L = -ln p(x|s) - reward_scale ln p(r|s) [- discount_scale ln p(γ|s)] + L_kl + L_gate
 
+(the discount head's target is γ·(1 − is_terminal) with ``ac.alignment=release``, as the
+release; 1 − is_terminal with ``next_state``)
+
     L_kl = kl_scale [ (1 - balance) max(mean KL(q || sg p), free)
                       +     balance  max(mean KL(sg q || p), free) ]
 
@@ -145,11 +148,27 @@ class WorldModel:
     def discount_logits(self, params: dict, feat: jax.Array) -> jax.Array:
         return self.discount_head.apply({"params": params["discount"]}, feat)
 
-    def discount_prob(self, params: dict, feat: jax.Array) -> jax.Array:
-        """P(episode continues | s): the discount head's Bernoulli mean, or ones without a head."""
+    @property
+    def discount_head_includes_gamma(self) -> bool:
+        """Whether the discount head is trained on γ·(1 − is_terminal) and used as it is (the
+        release, ``ac.alignment=release``) rather than trained on 1 − is_terminal and scaled
+        by γ (``next_state``)."""
+        return self.config.ac.alignment == "release"
+
+    def discount_target(self, is_terminal: jax.Array) -> jax.Array:
+        """The discount head's Bernoulli target: (γ·)(1 − is_terminal)."""
+        continuing = 1.0 - is_terminal.astype(jnp.float32)
+        return self.config.ac.gamma * continuing if self.discount_head_includes_gamma \
+            else continuing
+
+    def discount(self, params: dict, feat: jax.Array) -> jax.Array:
+        """The predicted discount d(s) behaviour learning uses: γ without a discount head;
+        else the head's Bernoulli mean, times γ unless the head was trained to include it."""
+        gamma = self.config.ac.gamma
         if not self.config.wm.discount_head:
-            return jnp.ones(feat.shape[:-1], feat.dtype)
-        return jax.nn.sigmoid(self.discount_logits(params, feat))
+            return jnp.full(feat.shape[:-1], gamma, feat.dtype)
+        prob = jax.nn.sigmoid(self.discount_logits(params, feat))
+        return prob if self.discount_head_includes_gamma else gamma * prob
 
     def observe(self, params: dict, seq: dict, key: jax.Array):
         """Posterior and prior states [T, ...] of one sequence (dict of [T, ...] arrays)."""
@@ -179,9 +198,8 @@ class WorldModel:
             "prior_entropy": jax.vmap(dyn.entropy)(priors),
         }
         if wm.discount_head:
-            continuing = 1.0 - seq["is_terminal"].astype(jnp.float32)
             terms["discount_logp"] = bernoulli_log_prob(self.discount_logits(params, feats),
-                                                        continuing)
+                                                        self.discount_target(seq["is_terminal"]))
         if dyn.gated:
             terms["gate_sample"] = jax.vmap(dyn.gates)(posts)[0]
             terms["gate_logit"] = jax.vmap(dyn.gate_logits)(posts)
