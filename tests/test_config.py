@@ -1,6 +1,7 @@
 """Config presets (spec section 5) and error messages for bad names, keys and types."""
 
 import dataclasses
+from pathlib import Path
 
 import pytest
 
@@ -151,3 +152,65 @@ def test_from_dict_rejects_unknown_keys():
     data["wm"]["bogus"] = 1
     with pytest.raises(ConfigError, match="bogus"):
         from_dict(data)
+
+
+# --- the README's preset table --------------------------------------------------------------
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+TABLE_HEADER = "| key | BBS | DMC | Atari | source |"
+DOMAIN_TASKS = {"BBS": "bbs_basic", "DMC": "dmc_walker_walk", "Atari": "atari_pong"}
+IDENTITY_KEYS = {"model.name", "env.task", "train.seed"}  # the run's name, not a preset
+
+
+def _cell_value(text: str):
+    if text in ("True", "False"):
+        return text == "True"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def _parse_cell(cell: str) -> dict:
+    """``"a; m1 b; m2 c"`` -> {model: value} for every model."""
+    default, *exceptions = [part.strip() for part in cell.split(";")]
+    values = dict.fromkeys(MODELS, _cell_value(default))
+    for exception in exceptions:
+        model, value = exception.split(" ", 1)
+        assert model in MODELS, f"unknown model {model!r} in cell {cell!r}"
+        values[model] = _cell_value(value)
+    return values
+
+
+def readme_presets() -> dict:
+    """{key: {domain: {model: value}}} from the README's preset table."""
+    lines = README.read_text().splitlines()
+    start = lines.index(TABLE_HEADER) + 2
+    table = {}
+    for line in lines[start:]:
+        if not line.startswith("|"):
+            break
+        key, *cells, _source = [cell.strip() for cell in line.strip("|").split("|")]
+        table[key.strip("`")] = {domain: _parse_cell(cell)
+                                 for domain, cell in zip(DOMAIN_TASKS, cells, strict=True)}
+    return table
+
+
+def test_readme_preset_table_matches_make_config_cell_by_cell():
+    table = readme_presets()
+    configs = {(domain, model): make_config(task, model, "paper")
+               for domain, task in DOMAIN_TASKS.items() for model in MODELS}
+    wrong = [f"{key} {domain} {model}: README {want!r}, make_config {_get(config, key)!r}"
+             for key, domains in table.items() for domain, models in domains.items()
+             for model, want in models.items() for config in [configs[domain, model]]
+             if _get(config, key) != want or type(_get(config, key)) is not type(want)]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_readme_preset_table_lists_every_config_key():
+    data = to_dict(make_config())
+    keys = {f"{section}.{name}" for section, values in data.items() if isinstance(values, dict)
+            for name in values}
+    assert keys - IDENTITY_KEYS == set(readme_presets())

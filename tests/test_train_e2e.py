@@ -98,6 +98,9 @@ def test_size_auto_is_small_on_cpu_and_explicit_sizes_pass_through():
 
 def test_next_multiple_and_env_seeds():
     assert [train.next_multiple(v, 100) for v in (0, 99, 100, 250)] == [100, 100, 200, 300]
+    # evaluations on the grid prefill end + k·eval_every (1030, 1130, ...), never twice at once
+    assert [train.next_on_grid(1030, v, 100) for v in (1030, 1129, 1130, 1390)] == [
+        1130, 1130, 1230, 1430]
     assert train.env_seed(7, 0) == 7
     assert train.env_seed(7, 500) != train.env_seed(7, 600)
 
@@ -188,6 +191,16 @@ def test_training_writes_every_artefact(runs, task):
     assert len(scores[0]["xs"]) == len(scores[0]["ys"]) >= 2
     episodes = read_jsonl(logdir / "eval_episodes.jsonl")
     assert len(episodes) == len(scores[0]["xs"]) * config["train"]["eval_episodes"]
+    # the release's schedule: pretraining updates and a first evaluation when prefill ends, then
+    # one update per train_every agent steps and an evaluation every eval_every env steps
+    train_cfg, repeat = config["train"], config["env"]["action_repeat"]
+    prefilled = int(re.search(r"prefill done at env step (\d+)", out).group(1))
+    steps, updates = map(int, re.search(r"done: (\d+) env steps, (\d+) updates", out).groups())
+    assert updates == (train_cfg["pretrain"] + 1
+                       + (steps - prefilled) // repeat // train_cfg["train_every"])
+    assert scores[0]["xs"][0] == prefilled
+    assert all(b - a >= train_cfg["eval_every"] for a, b in zip(scores[0]["xs"][:-2],
+                                                                 scores[0]["xs"][1:-1]))
     if task.startswith("bbs"):
         assert {"discovery/mean_first_visit", "discovery/never_visited",
                 "discovery/visited_not_scored", "discovery/episode_length"} <= set(episodes[0])

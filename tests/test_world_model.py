@@ -272,7 +272,7 @@ def test_heads_without_discount_and_with_tanh_reward():
     params = jax.eval_shape(model.init, jax.random.PRNGKey(0))
     assert "discount" not in params and config.wm.reward_tanh
     feat = jnp.zeros((5, model.dynamics.feat_dim))
-    np.testing.assert_array_equal(model.discount_prob(params, feat), np.ones(5))
+    np.testing.assert_allclose(model.discount(params, feat), np.full(5, config.ac.gamma))
     assert jax.eval_shape(model.decode, params, feat).shape == (5, 64, 64, 1)
     batch = random_batch(3, 1, 3, obs_shape=(64, 64, 1), action_dim=4)
     _, (metrics, _) = jax.eval_shape(model.loss, params, batch, jax.random.PRNGKey(0))
@@ -298,3 +298,21 @@ def test_decode_frames_in_chunks_equals_one_decode():
     feats = jax.random.normal(jax.random.PRNGKey(1), (3, 5, model.dynamics.feat_dim))
     np.testing.assert_allclose(model.decode_frames(params, feats, chunk=4),
                                model.decode(params, feats), atol=1e-5)
+
+
+@pytest.mark.parametrize("alignment", ["release", "next_state"])
+def test_discount_head_target_and_prediction_follow_the_alignment(alignment):
+    """release: trained on γ·(1 − terminal) and used as it is; next_state: on 1 − terminal, ×γ."""
+    config = make_config("bbs_basic", "vsg", "debug", [f"ac.alignment={alignment}",
+                                                        "ac.gamma=0.9"])
+    model = WorldModel(config)
+    params = jax.jit(model.init)(jax.random.PRNGKey(0))
+    feat = jax.random.normal(jax.random.PRNGKey(1), (4, model.dynamics.feat_dim))
+    prob = jax.nn.sigmoid(model.discount_logits(params, feat))
+    target = model.discount_target(jnp.array([False, True]))
+    if alignment == "release":
+        np.testing.assert_allclose(target, [0.9, 0.0], rtol=1e-6)
+        np.testing.assert_allclose(model.discount(params, feat), prob, rtol=1e-6)
+    else:
+        np.testing.assert_allclose(target, [1.0, 0.0])
+        np.testing.assert_allclose(model.discount(params, feat), 0.9 * prob, rtol=1e-6)
