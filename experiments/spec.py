@@ -1,0 +1,221 @@
+"""The paper's experiments as data: ``experiments/paper/<name>.toml`` -> runs and figures.
+
+An experiment file lists groups of runs and the figures or tables they feed::
+
+    description = "Figure 3b: ..."
+    reference = "vsg_paper_bbs.json"          # the paper's curves (experiments/reference_scores/)
+    steps = 2_500_000                         # train.steps of every run (env steps)
+    seeds = 5                                 # seeds 0 .. seeds-1
+    [[groups]]                                # one or more; every task x model x seed is a run
+    tasks = ["bbs_basic"]
+    models = ["dreamerv2", "vsg", "svsg"]
+    variant = ""                              # optional: an ablation's name ("nosparsity")
+    method = ""                               # optional: its label ("VSG-NoSparsityLoss")
+    overrides = []                            # optional: config overrides of the group
+    [[figures]]                               # what experiments.report draws
+    kind = "bars"
+    at = [1_000_000, 2_500_000]
+
+An experiment may instead evaluate another experiment's trained runs (``source = "bbs_grid"``
+with ``episodes = 50``: the discovery table) or draw from one (``kind = "rollouts"``): its runs
+are then the source's runs that match its groups, and its jobs evaluate rather than train.
+
+``load_experiment(name, size=, seeds=, steps=)`` applies the launcher's ``--size``,
+``--seeds`` and ``--steps`` overrides, so ``--size debug --seeds 2 --steps 5000`` is a version
+of any experiment that runs on a laptop. Every run has one log directory,
+``<root>/<experiment>/<task>/<model>[-<variant>]/s<seed>``.
+"""
+
+from __future__ import annotations
+
+import sys
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from vsgjax.config import MODELS, SIZES, ConfigError, make_config
+from vsgjax.envs import TaskError, parse_task
+from vsgjax.train import METHOD_NAMES
+
+PAPER_DIR = Path(__file__).resolve().parent / "paper"
+DEFAULT_ROOT = Path("runs")
+EVALUATION_FILE = "evaluation.jsonl"  # an evaluate job's episodes, one JSON object per line
+KINDS = ("train", "evaluate", "rollouts")
+_TOP_KEYS = {"description", "reference", "steps", "seeds", "groups", "figures", "source",
+             "episodes", "kind"}
+_GROUP_KEYS = {"tasks", "models", "variant", "method", "overrides"}
+
+
+class ExperimentError(ValueError):
+    """A bad experiment name or definition; the message names the value and what is valid."""
+
+
+def experiment_names(paper_dir: Path = PAPER_DIR) -> list[str]:
+    """Every experiment defined in ``paper_dir`` (by default ``experiments/paper/``)."""
+    return sorted(path.stem for path in Path(paper_dir).glob("*.toml"))
+
+
+@dataclass(frozen=True)
+class Run:
+    """One training run (task x model [x variant] x seed) of an experiment."""
+
+    experiment: str  # the experiment whose directory holds the run
+    task: str
+    model: str
+    seed: int
+    size: str = "paper"
+    steps: int = 0
+    variant: str = ""
+    method_label: str = ""
+    overrides: tuple[str, ...] = ()
+
+    @property
+    def method(self) -> str:
+        """The name in figures and tables (the reference scores' names for plain models)."""
+        return self.method_label or METHOD_NAMES[self.model] + (
+            f"-{self.variant}" if self.variant else "")
+
+    @property
+    def method_dir(self) -> str:
+        return self.model + (f"-{self.variant}" if self.variant else "")
+
+    def logdir(self, root: Path = DEFAULT_ROOT) -> Path:
+        return Path(root) / self.experiment / self.task / self.method_dir / f"s{self.seed}"
+
+    @property
+    def config_overrides(self) -> tuple[str, ...]:
+        """Overrides passed to ``vsgjax.train``: the group's, then ``train.steps``."""
+        return (*self.overrides, f"train.steps={self.steps}")
+
+    def config(self):
+        """The resolved :class:`vsgjax.config.Config` this run trains with."""
+        return make_config(self.task, self.model, self.size,
+                           [f"train.seed={self.seed}", *self.config_overrides])
+
+    def train_command(self, root: Path = DEFAULT_ROOT, python: str = sys.executable) -> list[str]:
+        """``python -m vsgjax.train ...`` for this run (resumes if its logdir has a checkpoint)."""
+        return [python, "-m", "vsgjax.train", "--task", self.task, "--model", self.model,
+                "--size", self.size, "--seed", str(self.seed), "--logdir",
+                str(self.logdir(root)), "--no-progress", *self.config_overrides]
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """An experiment: its runs and the figures they feed (see the module docstring)."""
+
+    name: str
+    description: str
+    kind: str  # "train", "evaluate" (source's checkpoints) or "rollouts" (drawn from them)
+    runs: tuple[Run, ...]
+    figures: tuple[dict, ...] = ()
+    reference: str | None = None
+    source: str | None = None  # the experiment whose runs an evaluate/rollouts experiment uses
+    episodes: int = 0  # evaluation episodes per run (kind "evaluate")
+
+    def job_dir(self, run: Run, root: Path = DEFAULT_ROOT) -> Path:
+        """Where this experiment's job for ``run`` writes: the run's own log directory for a
+        training experiment; ``<root>/<name>/<task>/<method>/s<seed>`` for an evaluate or
+        rollouts experiment (whose ``run`` lives in the source experiment's directory)."""
+        if self.kind == "train":
+            return run.logdir(root)
+        return Path(root) / self.name / run.task / run.method_dir / f"s{run.seed}"
+
+    @property
+    def tasks(self) -> list[str]:
+        return list(dict.fromkeys(run.task for run in self.runs))
+
+    @property
+    def methods(self) -> list[str]:
+        return list(dict.fromkeys(run.method for run in self.runs))
+
+
+def load_experiment(name: str, size: str = "paper", seeds: int | None = None,
+                    steps: int | None = None, paper_dir: Path = PAPER_DIR) -> Experiment:
+    """The experiment ``name`` (a file in ``paper_dir``) with the launcher's overrides applied.
+
+    ``seeds``: use seeds 0..seeds-1 instead of the file's; ``steps``: every run's
+    ``train.steps``. Raises :class:`ExperimentError` naming a bad value and the valid ones.
+    """
+    valid = experiment_names(paper_dir)
+    if name not in valid:
+        raise ExperimentError(f"unknown experiment {name!r}; valid: {', '.join(valid)}")
+    if size not in SIZES:
+        raise ExperimentError(f"unknown size {size!r}; valid: {', '.join(SIZES)}")
+    for what, value in (("seeds", seeds), ("steps", steps)):
+        if value is not None and value < 1:
+            raise ExperimentError(f"--{what} must be a positive integer, got {value}")
+    path = Path(paper_dir) / f"{name}.toml"
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as error:
+        raise ExperimentError(f"{path}: {error}") from None
+    _check_keys(path, "top level", data, _TOP_KEYS)
+    kind = data.get("kind", "evaluate" if "source" in data else "train")
+    if kind not in KINDS:
+        raise ExperimentError(f"{path}: unknown kind {kind!r}; valid: {', '.join(KINDS)}")
+    source = data.get("source")
+    if kind == "train":
+        runs = _expand(name, path, data, size, seeds, steps)
+    else:
+        if source is None:
+            raise ExperimentError(f"{path}: kind {kind!r} needs a source experiment")
+        runs = _select(load_experiment(source, size, seeds, steps, paper_dir), path, data)
+    return Experiment(name, data.get("description", ""), kind, tuple(runs),
+                      tuple(data.get("figures", ())), data.get("reference"), source,
+                      int(data.get("episodes", 0)))
+
+
+def _check_keys(path: Path, where: str, table: dict, valid: set[str]) -> None:
+    unknown = sorted(set(table) - valid)
+    if unknown:
+        raise ExperimentError(f"{path}: unknown keys {unknown} in {where}; "
+                              f"valid: {', '.join(sorted(valid))}")
+
+
+def _groups(path: Path, data: dict) -> list[dict]:
+    groups = data.get("groups", [])
+    if not groups:
+        raise ExperimentError(f"{path}: no [[groups]] of runs")
+    for index, group in enumerate(groups):
+        _check_keys(path, f"group {index}", group, _GROUP_KEYS)
+        for model in group.get("models", []):
+            if model not in MODELS:
+                raise ExperimentError(f"{path}: group {index}: unknown model {model!r}; "
+                                      f"valid: {', '.join(MODELS)}")
+        for task in group.get("tasks", []):
+            try:
+                parse_task(task)
+            except (TaskError, ConfigError) as error:
+                raise ExperimentError(f"{path}: group {index}: {error}") from None
+    return groups
+
+
+def _expand(name: str, path: Path, data: dict, size: str, seeds: int | None,
+            steps: int | None) -> list[Run]:
+    """Every task x model x seed of every group, in file order."""
+    count = seeds if seeds is not None else int(data.get("seeds", 1))
+    total = steps if steps is not None else int(data["steps"])
+    runs = []
+    for group in _groups(path, data):
+        for task in group["tasks"]:
+            for model in group["models"]:
+                for seed in range(count):
+                    runs.append(Run(name, task, model, seed, size, total,
+                                    group.get("variant", ""), group.get("method", ""),
+                                    tuple(group.get("overrides", ()))))
+    return runs
+
+
+def _select(source: Experiment, path: Path, data: dict) -> list[Run]:
+    """The source experiment's runs whose task and method its groups name."""
+    wanted = [(task, model, group.get("variant", ""))
+              for group in _groups(path, data) for task in group["tasks"]
+              for model in group["models"]]
+    runs = [run for run in source.runs if (run.task, run.model, run.variant) in wanted]
+    missing = sorted({f"{t}/{m}" for t, m, v in wanted}
+                     - {f"{r.task}/{r.model}" for r in runs})
+    if missing:
+        raise ExperimentError(f"{path}: source experiment {source.name!r} has no runs of "
+                              f"{', '.join(missing)}")
+    return runs
+
