@@ -12,14 +12,40 @@ from numbers import Integral, Real
 import gymnasium as gym
 import numpy as np
 
+from bbs import window
 from bbs.discovery import DiscoveryTracker
 from bbs.geometry import ArenaGeometry, arena_geometry
-from bbs.layout import Layout, parse_layout, sample_layout
+from bbs.layout import Layout, parse_layout, sample_layout, smallest_arena_size
 from bbs.physics import DT, Scene, Simulation
 from bbs.render import ViewRenderer, draw_arena, view_box
 
 MAX_FORCE = 400.0
 TWO_PI = 2 * math.pi
+RENDER_MODES = ("human", "rgb_array")
+
+
+def available_render_modes() -> list[str]:
+    """The render modes that work here: ``"human"`` needs pygame (the ``play`` extra)."""
+    return [m for m in RENDER_MODES if m != "human" or window.pygame_available()]
+
+
+def smallest_arena_scale() -> float:
+    """The smallest ``arena_scale`` whose arena fits the spawn rule (``smallest_arena_size``).
+
+    Found on the geometry itself (``int(800 S) x int(700 S)``, float truncation included).
+    """
+    width, length = smallest_arena_size()
+    scale = max(width / 800, length / 700)
+    while not _fits(arena_geometry(scale), width, length):
+        scale = math.nextafter(scale, math.inf)
+    return scale
+
+
+def _fits(geometry: ArenaGeometry, width: int, length: int) -> bool:
+    return geometry.width >= width and geometry.length >= length
+
+
+MIN_ARENA_SCALE = smallest_arena_scale()
 
 
 def _check_int(name: str, value, minimum: int) -> None:
@@ -31,6 +57,13 @@ def _validate_options(arena_scale, num_objects, num_distractors, agent_view_size
                       time_limit, obs_size, canvas_size, render_mode) -> None:
     if not isinstance(arena_scale, Real) or not math.isfinite(arena_scale) or arena_scale <= 0:
         raise ValueError(f"arena_scale must be a finite number > 0; got {arena_scale!r}")
+    geometry = arena_geometry(arena_scale)
+    if not _fits(geometry, *smallest_arena_size()):
+        raise ValueError(
+            f"arena_scale={arena_scale!r} is too small: the smallest valid scale is "
+            f"{MIN_ARENA_SCALE!r} (its {geometry.width}x{geometry.length} arena leaves no room "
+            f"to spawn the agent clear of the walls, left of the goal line)"
+        )
     _check_int("num_objects", num_objects, 1)
     _check_int("num_distractors", num_distractors, 0)
     _check_int("agent_view_size", agent_view_size, 1)
@@ -40,18 +73,16 @@ def _validate_options(arena_scale, num_objects, num_distractors, agent_view_size
     _check_int("obs_size", obs_size, 1)
     if canvas_size is not None:
         _check_int("canvas_size", canvas_size, obs_size)
-    geometry = arena_geometry(arena_scale)
     view = 2 * agent_view_size
     if view > min(geometry.width, geometry.length):
         raise ValueError(
             f"agent_view_size={agent_view_size} gives a {view}x{view} view box, larger than the "
             f"{geometry.width}x{geometry.length} arena at arena_scale={arena_scale}"
         )
-    if geometry.goal_height <= 0:
-        raise ValueError(f"arena_scale={arena_scale} is too small: the arena has no goal opening")
-    render_modes = BringBackShapesEnv.metadata["render_modes"]
-    if render_mode is not None and render_mode not in render_modes:
-        raise ValueError(f"render_mode={render_mode!r} is not None or one of {render_modes}")
+    if render_mode is not None and render_mode not in RENDER_MODES:
+        raise ValueError(f"render_mode={render_mode!r} is not None or one of {list(RENDER_MODES)}")
+    if render_mode == "human" and not window.pygame_available():
+        raise ImportError(window.PYGAME_MISSING)
 
 
 class BringBackShapesEnv(gym.Env):
@@ -59,9 +90,11 @@ class BringBackShapesEnv(gym.Env):
 
     Args:
         render_mode: None, ``"rgb_array"`` (``render()`` returns the full arena with the view
-            box, like the paper's figure) or ``"human"`` (a pygame window, extra ``play``).
+            box, like the paper's figure) or ``"human"`` (a pygame window, extra ``play``;
+            without pygame it raises ImportError, and ``metadata["render_modes"]`` omits it).
         arena_scale: S; the arena is ``int(800 S) x int(700 S)`` px (walls, goal width, shapes
-            and the view box do not scale).
+            and the view box do not scale). At least ``MIN_ARENA_SCALE`` (0.475): below it the
+            agent can't spawn clear of the walls left of the goal line.
         num_objects: shapes per episode (the maximum if ``variable_num_objects``).
         num_distractors: Brownian kites (the maximum if ``variable_num_distractors``).
         variable_num_objects: draw the count uniformly from 1..num_objects at each reset.
@@ -84,7 +117,7 @@ class BringBackShapesEnv(gym.Env):
         include_state_in_info: add ``true_state()`` to every ``info`` (costs ~20 us per step).
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 15}
+    metadata = {"render_modes": available_render_modes(), "render_fps": 15}
 
     def __init__(
         self,
@@ -116,7 +149,8 @@ class BringBackShapesEnv(gym.Env):
             agent_view_size, action_repeat, time_limit)
         self.normalize_actions, self.odd_force_point = normalize_actions, odd_force_point
         self.include_state_in_info = include_state_in_info
-        self.metadata = dict(self.metadata, render_fps=round(1 / (DT * action_repeat)))
+        self.metadata = {"render_modes": available_render_modes(),
+                         "render_fps": round(1 / (DT * action_repeat))}
         self._default_geometry = arena_geometry(self.arena_scale)
         self._renderer = ViewRenderer(obs_size, canvas_size or obs_size, 2 * agent_view_size)
         self.observation_space = gym.spaces.Box(0, 255, (obs_size, obs_size, 3), np.uint8)
@@ -199,11 +233,15 @@ class BringBackShapesEnv(gym.Env):
 
     def _decode(self, action) -> tuple[float, float]:
         """Map an action to (angle, force), clipping out-of-range values to the action space."""
-        if np.shape(action) != (2,):
-            raise ValueError(f"action must have shape (2,); got shape {np.shape(action)}")
-        a0, a1 = float(action[0]), float(action[1])
+        try:  # None converts to NaN; other non-numbers raise here
+            values = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            values = None
+        if values is not None and values.shape != (2,):
+            raise ValueError(f"action must have shape (2,); got shape {values.shape}")
+        a0, a1 = (math.nan, math.nan) if values is None else values.tolist()
         if not (math.isfinite(a0) and math.isfinite(a1)):
-            raise ValueError(f"action must be finite; got {action!r}")
+            raise ValueError(f"action must be two finite numbers; got {action!r}")
         if self.normalize_actions:
             a0, a1 = min(max(a0, -1.0), 1.0), min(max(a1, -1.0), 1.0)
             return (a0 + 1.0) * math.pi, (a1 + 1.0) * MAX_FORCE / 2

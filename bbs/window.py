@@ -1,16 +1,23 @@
 """A pygame window for ``render_mode="human"`` and ``python -m bbs.play`` (extra ``play``)."""
 
+import importlib.util
+
 import numpy as np
+
+PYGAME_MISSING = ("render_mode='human' and `python -m bbs.play` need pygame, which is optional: "
+                  "pip install 'vsgjax[play]' (or pip install pygame)")
+
+
+def pygame_available() -> bool:
+    """Whether pygame is installed (found without importing it: no banner, no start-up cost)."""
+    return importlib.util.find_spec("pygame") is not None
 
 
 def import_pygame():
     try:
         import pygame
     except ImportError as error:
-        raise ImportError(
-            "render_mode='human' and `python -m bbs.play` need pygame, which is optional: "
-            "pip install 'vsgjax[play]' (or pip install pygame)"
-        ) from error
+        raise ImportError(PYGAME_MISSING) from error
     return pygame
 
 

@@ -14,10 +14,10 @@ import pytest
 
 import bbs
 from bbs.discovery import DiscoveryTracker
-from bbs.geometry import arena_geometry
-from bbs.layout import parse_layout
+from bbs.geometry import AGENT_RADIUS, DISTRACTOR_VERTICES, OBJECT_SHAPES, arena_geometry
+from bbs.layout import parse_layout, sample_layout
 from bbs.physics import DAMPING_PER_STEP, DT, Simulation
-from bbs.render import VIEW_PALETTE, view_colour
+from bbs.render import VIEW_PALETTE, original_pipeline_view, view_box, view_colour
 
 RIGHT = np.array([-1.0, 1.0], np.float32)  # normalised: angle 0 (towards the goal), force 400
 SQUARE_COLOURS = ("orange", "blue", "green", "red", "purple")
@@ -287,6 +287,44 @@ def test_bad_layout_is_rejected(bad, message):
         env.reset(options={"layout": layout() | bad})
 
 
+@pytest.mark.parametrize("bad, message", [
+    ({"agent": {"position": (50, 50)}}, r"layout agent at \(50, 50\) overlaps the arena wall"),
+    ({"agent": {"position": (300.0, 130.0)}}, r"agent at \(300, 130\) overlaps the arena wall "
+                                              r"\(top wall\)"),
+    ({"objects": [square(200, 200), square(60, 300)]},
+     r"layout objects\[1\] at \(60, 300\) overlaps the arena wall \(left wall\)"),
+    ({"distractors": [{"position": (300.0, 690.0)}]},
+     r"layout distractors\[0\] at \(300, 690\) overlaps the arena wall \(bottom wall\)"),
+    ({"distractors": [{"position": (400.0, 580.0)}]}, r"distractors\[0\] at \(400, 580\)"),
+])
+def test_layout_entities_inside_walls_are_rejected(bad, message):
+    # The agent at (50, 50) used to be pushed out of the arena, to y = -14.9, and stay there.
+    env = bbs.BringBackShapesEnv()
+    with pytest.raises(ValueError, match=message):
+        env.reset(options={"layout": layout(objects=[square(200, 200)]) | bad})
+
+
+def test_layouts_touching_walls_or_past_the_goal_line_are_accepted():
+    # The agent's disc may touch a wall; past the goal line it starts clamped (x = 560); object
+    # shapes may reach into walls (only their origin must lie inside), as sampled ones do.
+    env = bbs.BringBackShapesEnv()
+    env.reset(options={"layout": layout(agent=(140.0, 140.0), objects=[square(125, 560, angle=1)],
+                                        distractors=[(137.0, 563.0)])})
+    env.reset(options={"layout": layout(agent=(640.0, 230.0), objects=[square(200, 200)])})
+    assert env.true_state()["agent_pose"][0] == 560.0
+
+
+@pytest.mark.parametrize("scale", [bbs.env.MIN_ARENA_SCALE, 1.0, 1.6])
+def test_sampled_layouts_pass_the_layout_checks(scale):
+    """Every layout the spawn rule draws can be replayed (``to_dict`` -> ``reset``)."""
+    rng = np.random.default_rng(0)
+    default = arena_geometry(scale)
+    for _ in range(300):
+        goal_y = float(rng.uniform(*default.goal_y_range))
+        sampled = sample_layout(rng, arena_geometry(scale, goal_y), 5, 4, goal_y)
+        assert parse_layout(sampled.to_dict(), default) == sampled
+
+
 def test_variants_registry_and_task_names():
     assert len(bbs.VARIANTS) == 16
     assert bbs.variant_kwargs("bbs_medium_d4") == {"arena_scale": 1.4, "num_distractors": 4}
@@ -303,13 +341,29 @@ def test_variants_registry_and_task_names():
     assert len(custom.unwrapped.true_state()["object_poses"]) == 2
 
 
-def test_gymnasium_env_checker_passes_without_warnings():
+def test_gymnasium_env_checker_passes_without_warnings(monkeypatch):
+    """With the render check: every advertised render mode is made and rendered."""
     from gymnasium.utils.env_checker import check_env
 
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")  # headless window, where pygame is installed
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        check_env(gymnasium.make("BringBackShapes-Basic-D2-v0").unwrapped, skip_render_check=True)
-        check_env(bbs.BringBackShapesEnv(render_mode="rgb_array"), skip_render_check=True)
+        check_env(gymnasium.make("BringBackShapes-Basic-D2-v0").unwrapped)
+        check_env(gymnasium.make("BringBackShapes-v0", render_mode="rgb_array").unwrapped)
+
+
+def test_render_modes_advertise_human_only_with_pygame(monkeypatch):
+    import importlib.util
+
+    installed = importlib.util.find_spec("pygame") is not None
+    expected = ["human", "rgb_array"] if installed else ["rgb_array"]
+    assert bbs.BringBackShapesEnv.metadata["render_modes"] == expected
+    monkeypatch.setattr(bbs.window, "pygame_available", lambda: False)
+    assert bbs.BringBackShapesEnv().metadata["render_modes"] == ["rgb_array"]
+    with pytest.raises(ImportError, match=r"vsgjax\[play\]"):
+        bbs.BringBackShapesEnv(render_mode="human")
+    monkeypatch.setattr(bbs.window, "pygame_available", lambda: True)
+    assert bbs.BringBackShapesEnv().metadata["render_modes"] == ["human", "rgb_array"]
 
 
 # ------------------------------------------------------------------------------------ options
@@ -374,6 +428,7 @@ def test_out_of_range_actions_are_clipped_and_bad_actions_raise():
     exact.reset(seed=4)
     assert np.array_equal(clipped.step([-7.0, 3.0])[0], exact.step([-1.0, 1.0])[0])
     for bad, message in [([math.nan, 0.0], "finite"), ([0.0, math.inf], "finite"),
+                         ([None, 0], "finite"), (["left", 0.0], "finite"),
                          ([0.0, 0.0, 0.0], r"shape \(2,\)"), (0.5, r"shape \(2,\)")]:
         with pytest.raises(ValueError, match=message):
             exact.step(bad)
@@ -414,6 +469,34 @@ def test_state_in_info_option():
 def test_bad_options_are_rejected_with_the_value(kwargs, message):
     with pytest.raises(ValueError, match=message):
         bbs.BringBackShapesEnv(**kwargs)
+
+
+@pytest.mark.parametrize("scale", [0.358, 0.39, 0.4, 0.47])
+def test_too_small_arena_scale_is_rejected_at_construction(scale):
+    # Below 0.4 reset() used to fail inside numpy; below 0.475 the agent, clamped at the goal
+    # line (goal_x - 15), starts inside the left wall: 2 * 125 (walls) + 100 (goal) + 2 * 15.
+    smallest = bbs.env.MIN_ARENA_SCALE
+    assert smallest == 0.475 and arena_geometry(smallest).goal_x - AGENT_RADIUS == 125 + 15
+    with pytest.raises(ValueError, match=rf"arena_scale={scale} is too small: the smallest valid "
+                                         rf"scale is 0\.475"):
+        bbs.BringBackShapesEnv(arena_scale=scale)
+    with pytest.raises(ValueError, match="too small"):
+        bbs.BringBackShapesEnv(arena_scale=math.nextafter(smallest, 0.0))
+
+
+def test_smallest_arena_scale_resets_and_steps():
+    env = bbs.BringBackShapesEnv(arena_scale=bbs.env.MIN_ARENA_SCALE, num_distractors=4,
+                                 variable_goal_position=True)
+    rng = np.random.default_rng(0)
+    for seed in range(10):
+        env.reset(seed=seed)
+        for _ in range(10):
+            _, _, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 2))
+            if terminated or truncated:
+                break
+        state = env.true_state()
+        assert 110 < state["agent_pose"][0] < env.geometry.goal_x
+        assert 110 < state["agent_pose"][1] < env.geometry.length - 110
 
 
 def test_unknown_reset_option_is_rejected():
@@ -502,6 +585,96 @@ def test_full_arena_goal_pixels_match_the_original():
     assert (rows.min(), rows.max(), cols.min(), cols.max()) == (239, 461, 575, 674)
 
 
+VIEW_SCALE = 64 / 250  # the 250x250 view box onto the 64x64 observation (bbs/render.py)
+FAR_OBJECT = square(140, 140, shape="triangle")  # out of view: a layout needs an object
+
+
+def _area_and_centroid(vertices):
+    """Shoelace area and centroid of a simple polygon."""
+    area2 = cx = cy = 0.0
+    for (x0, y0), (x1, y1) in zip(vertices, (*vertices[1:], vertices[0]), strict=True):
+        cross = x0 * y1 - x1 * y0
+        area2, cx, cy = area2 + cross, cx + (x0 + x1) * cross, cy + (y0 + y1) * cross
+    return abs(area2) / 2, (cx / (3 * area2), cy / (3 * area2))
+
+
+def _drawn_area(obs, colour, box, centre, reach=45.0):
+    """Observation px^2 of ``colour`` within ``reach`` world px of ``centre``.
+
+    Each pixel counts the fraction of the way it lies from the background to ``colour``
+    (projected on that direction, clipped to [0, 1]): 1 for a pixel of the shape's colour,
+    the blend fraction for a blended one.
+    """
+    background = np.array(VIEW_PALETTE.background, float)
+    direction = np.array(colour, float) - background
+    share = np.clip((obs - background) @ direction / (direction @ direction), 0.0, 1.0)
+    centres = (np.arange(obs.shape[0]) + 0.5) / VIEW_SCALE - 0.5  # pixel centres, world px
+    near_x, near_y = (np.abs(centres + box.x0 - centre[0]) < reach,
+                      np.abs(centres + box.y0 - centre[1]) < reach)
+    return float(share[np.outer(near_y, near_x)].sum())
+
+
+@pytest.mark.parametrize("kind", [*OBJECT_SHAPES, "distractor", "agent"])
+def test_drawn_area_of_every_shape_is_unbiased(kind):
+    """Mean drawn area over random sub-pixel positions and angles: within 3% of the true area.
+
+    The true area is the polygon's (disc's) area scaled to the 64x64 view, by (64/250)^2.
+    Before pixel-centre sampling the shapes were 15-39% too large (triangle 1.39x).
+    """
+    env = bbs.BringBackShapesEnv()
+    rng = np.random.default_rng(0)
+    ratios = []
+    for _ in range(40):
+        angle = float(rng.uniform(0, 2 * math.pi))
+        cx, cy = (float(v) for v in rng.uniform(-4, 4, 2) + (250.0, 310.0))
+        if kind == "agent":
+            scene = layout(agent=(cx, cy), agent_angle=angle, objects=[FAR_OBJECT])
+            area, colour = math.pi * AGENT_RADIUS**2, VIEW_PALETTE.agent
+        else:
+            vertices = DISTRACTOR_VERTICES if kind == "distractor" else OBJECT_SHAPES[kind]
+            area, (gx, gy) = _area_and_centroid(vertices)
+            c, s = math.cos(angle), math.sin(angle)
+            origin = (cx - (c * gx - s * gy), cy - (s * gx + c * gy))  # centroid at (cx, cy)
+            if kind == "distractor":
+                scene = layout(agent=(330.0, 380.0), objects=[FAR_OBJECT])
+                scene["distractors"] = [{"position": origin, "angle": angle}]
+                colour = VIEW_PALETTE.distractor
+            else:
+                scene = layout(agent=(330.0, 380.0), objects=[square(*origin, "red", kind, angle)])
+                colour = VIEW_PALETTE.objects["red"]
+        obs, _ = env.reset(options={"layout": scene})
+        box = view_box(env.scene.agent, env.agent_view_size, env.geometry)
+        ratios.append(_drawn_area(obs, colour, box, (cx, cy)) / (area * VIEW_SCALE**2))
+    assert np.mean(ratios) == pytest.approx(1.0, abs=0.03)
+
+
+def test_observation_differs_from_the_original_pipeline_only_on_few_edge_pixels():
+    """Against the original's pipeline (250x250 frame, bilinear to 64; emulated): at most the
+    2.1% of pixels that differed before pixel-centre sampling, and only on shape edges or the
+    agent's orientation line (drawn one pixel wide in its area-averaged colour)."""
+    p = VIEW_PALETTE
+    line = [round(a + VIEW_SCALE * (b - a)) for a, b in zip(p.agent, p.agent_line, strict=True)]
+    shares = []
+    for seed in range(3):
+        env = bbs.make("bbs_basic_d2")
+        env.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        for step in range(24):
+            obs, *_ = env.step(rng.uniform(-1, 1, 2))
+            if step % 6 != 5:
+                continue
+            box = view_box(env.scene.agent, env.agent_view_size, env.geometry)
+            reference = original_pipeline_view(env.scene, env.geometry, box).astype(int)
+            differs = np.any(obs != reference, axis=-1)
+            shares.append(differs.mean())
+            padded = np.pad(reference, ((1, 1), (1, 1), (0, 0)), mode="edge")
+            windows = np.lib.stride_tricks.sliding_window_view(padded, (3, 3), axis=(0, 1))
+            on_edge = np.any(windows.max(axis=(-2, -1)) != windows.min(axis=(-2, -1)), axis=-1)
+            on_line = np.all(obs == line, axis=-1)
+            assert np.all((on_edge | on_line)[differs])  # on_edge: a 3x3 window of 2+ colours
+    assert np.mean(shares) <= 0.021
+
+
 # ------------------------------------------------------------------------------------ vector
 def test_vector_envs_sync_and_async():
     make = functools.partial(bbs.make, "bbs_basic_d1", time_limit=14)  # picklable for spawn
@@ -549,13 +722,3 @@ def test_keyboard_mapping_of_play():
     assert action_from_keys(True, False, False, False) == (0.0, 400.0)
     assert action_from_keys(False, False, False, True) == (pytest.approx(1.5 * math.pi), 400.0)
     assert action_from_keys(False, True, True, False) == (pytest.approx(0.75 * math.pi), 400.0)
-
-
-def test_human_render_without_pygame_explains_the_extra():
-    import importlib.util
-
-    if importlib.util.find_spec("pygame") is not None:
-        pytest.skip("pygame is installed")
-    env = bbs.BringBackShapesEnv(render_mode="human")
-    with pytest.raises(ImportError, match=r"vsgjax\[play\]"):
-        env.reset(seed=0)
