@@ -119,8 +119,9 @@ def constant_critic(params, value):
 def counting_losses(behaviour, actor, critic, slow):
     """(actor loss, (imagined, metrics)), critic loss, entropies and log-probs on one start."""
     world, starts = counting_world(), jnp.zeros((1, FEAT))
+    keys = jax.random.split(jax.random.PRNGKey(5), 1)
     loss, (imagined, metrics) = bhv.actor_loss(actor, behaviour, critic, slow, world, starts,
-                                               jnp.ones(1), jax.random.split(jax.random.PRNGKey(5), 1))
+                                               jnp.ones(1), keys)
     policy = behaviour.policy(actor, imagined.feat[0, :-1])
     critic_value = bhv.critic_loss(critic, behaviour, imagined)[0]
     return (loss, imagined, critic_value, policy.entropy(),

@@ -1,4 +1,4 @@
-"""The manual: every relative link in README.md and docs/ points at a file (and heading) that exists."""
+"""The manual: every relative link in README.md and docs/ names a file (and heading) that exists."""
 
 import re
 from pathlib import Path

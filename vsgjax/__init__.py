@@ -5,7 +5,14 @@ Public API (imported lazily, so ``import vsgjax`` stays cheap)::
     config = vsgjax.make_config(task="bbs_basic", model="vsg", size="small")
     state = vsgjax.init(config, key, obs_shape=(64, 64, 3), action_dim=2)
     state, metrics, posts = vsgjax.train_step(config, state, batch, key)
-    rollout = vsgjax.imagine(state.params, start, H=15, config=config, key=key)
+    rollout = vsgjax.imagine(state.params, start, H=15, config=config, key=key, action_dim=2)
+
+    run = vsgjax.load("runs/bbs_basic-vsg-s0")     # a trained run: config, params, episodes
+    posts = run.observe(run.episode(-1))           # posterior states [T, ...]
+    rollout = vsgjax.imagine(run.params, jax.tree.map(lambda x: x[14], posts), H=15)
+
+(``run.params`` carry their config, so that last call needs no ``config``/``key``; see
+``vsgjax.load`` and docs/notebook.md.)
 """
 
 import importlib
@@ -21,6 +28,9 @@ _EXPORTS = {
     "imagine": "vsgjax.api",
     "observe": "vsgjax.api",
     "TrainState": "vsgjax.api",
+    "TrainedParams": "vsgjax.api",
+    "load": "vsgjax.runs",
+    "Run": "vsgjax.runs",
     "make_optimizer": "vsgjax.optim",
     "Agent": "vsgjax.agent",
 }

@@ -8,10 +8,17 @@ Everything is a pure function of explicit params, state and PRNG keys; the confi
     last = jax.tree.map(lambda x: x[:, -1], posts)           # [B] posterior states
     out = imagine(state.params, last, 15, config=config, key=key, action_dim=2)
     out["images"]                                             # [B, 15, 64, 64, 3] uint8
+
+A trained run's params (:func:`vsgjax.load`) are a :class:`TrainedParams` pytree that carries
+its config as static data, so from a notebook the call is simply::
+
+    run = vsgjax.load("runs/bbs_basic-vsg-s0")
+    out = imagine(run.params, state, H=15)    # config from the params, key PRNGKey(0), actor
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -20,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from vsgjax.behaviour import Behaviour
 from vsgjax.config import Config
 from vsgjax.networks import DECODER_KERNELS, float_to_image
 from vsgjax.optim import world_model_optimizer
@@ -80,31 +88,102 @@ def observe(config: Config, params: dict, batch: dict, key: jax.Array):
 
 Policy = Callable[[jax.Array, jax.Array], jax.Array]
 
+DEFAULT_SEED = 0  # imagine(key=None) uses jax.random.PRNGKey(DEFAULT_SEED): deterministic
 
-def imagine(params: dict, state: Any, H: int = 15, *, config: Config, key: jax.Array,
+
+@jax.tree_util.register_pytree_node_class
+@dataclasses.dataclass(frozen=True, eq=False)
+class TrainedParams:
+    """A trained agent's parameters together with the static facts needed to use them.
+
+    A pytree node: its children are the parameter dicts ``wm`` (world model), ``actor`` and
+    ``critic`` (``None`` when absent, e.g. a world model trained alone); its aux data is the
+    hashable ``(config, action_dim, discrete)``, which JAX treats as static. So a
+    ``TrainedParams`` passes through ``jax.jit``, ``jax.tree.map`` or ``jax.device_put`` like
+    the dicts it holds (the config becomes part of the compiled program's cache key, as a
+    ``static_argnames`` argument would), and :func:`imagine` can read the config, the action
+    size and the actor from it instead of asking for them. ``params["wm"]`` also works, as with
+    the checkpoint's params dict.
+    """
+
+    wm: dict
+    actor: dict | None
+    critic: dict | None
+    config: Config
+    action_dim: int
+    discrete: bool = False
+
+    def tree_flatten(self):
+        return (self.wm, self.actor, self.critic), (self.config, self.action_dim, self.discrete)
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        return cls(*children, *aux)
+
+    def __getitem__(self, name: str):
+        if name not in ("wm", "actor", "critic"):
+            raise KeyError(name)
+        return getattr(self, name)
+
+    @property
+    def behaviour(self) -> Behaviour:
+        """The actor-critic networks these params belong to (static, hashable)."""
+        return Behaviour(self.config.ac, self.config.wm.mlp_units, self.action_dim,
+                         self.discrete)
+
+
+def imagine(params: dict | TrainedParams, state: Any, H: int = 15, *,
+            config: Config | None = None, key: jax.Array | None = None,
             actions: jax.Array | None = None, policy: Policy | None = None,
             action_dim: int | None = None) -> dict:
     """Roll the prior forward ``H`` steps from (possibly batched) start states and decode.
 
+    ``params`` is the world model's params dict (then ``config`` is required), or the
+    :class:`TrainedParams` of a trained run (:func:`vsgjax.load`), which carries its config.
+    ``key`` defaults to ``jax.random.PRNGKey(DEFAULT_SEED)`` (0), so a call without a key is
+    deterministic; pass keys to draw different samples.
+
     The actions come from, in this order of precedence: ``actions`` ``[..., H, A]`` (open
-    loop), ``policy(feat, key) -> action`` (closed loop), or zeros of size ``action_dim``.
+    loop), ``policy(feat, key) -> action`` (closed loop), zeros of size ``action_dim`` when it
+    is given, and otherwise, for ``TrainedParams``, samples of the trained actor (closed loop,
+    as behaviour learning imagines), or zeros when the params carry no actor. A plain params
+    dict needs one of ``actions``, ``policy`` or ``action_dim``.
     Returns a dict of arrays with leading dims ``[..., H]``: the imagined ``states`` (the
     state after each action; the start state is not repeated), ``actions``, ``feats``,
     ``images`` (uint8), ``image_means`` (float, [-0.5, 0.5]), ``rewards`` and ``discounts``.
+    Pure and jit-friendly: ``jax.jit(lambda p, s: imagine(p, s, H=15))(run.params, state)``.
     """
-    if actions is None and policy is None and action_dim is None:
-        raise ValueError("imagine needs actions, a policy, or action_dim (for zero actions)")
+    actor = actor_params = None
+    if isinstance(params, TrainedParams):
+        if config is not None and config != params.config:
+            raise ValueError("config= differs from the config the TrainedParams carry; "
+                             "leave config out")
+        config, trained, params = params.config, params, params.wm
+        if actions is None and policy is None and action_dim is None:
+            if trained.actor is not None:
+                actor, actor_params = trained.behaviour, trained.actor
+            else:
+                action_dim = trained.action_dim
+    else:
+        if config is None:
+            raise TypeError("imagine needs config= with a plain params dict (the TrainedParams "
+                            "of vsgjax.load carry their config)")
+        if actions is None and policy is None and action_dim is None:
+            raise ValueError("imagine needs actions, a policy, or action_dim (for zero actions)")
+    if key is None:
+        key = jax.random.PRNGKey(DEFAULT_SEED)
     model = world_model_for(config, params)
     batch_shape = _batch_shape(model, state)
     start = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[len(batch_shape):]), state)
     count = jax.tree.leaves(start)[0].shape[0]
-    if actions is None and policy is None:
+    if actions is None and policy is None and actor is None:
         actions = jnp.zeros(batch_shape + (H, action_dim), jnp.float32)
     if actions is not None:
+        actions = jnp.asarray(actions, jnp.float32)
         if actions.shape[len(batch_shape)] != H:
             raise ValueError(f"actions have horizon {actions.shape[len(batch_shape)]}, H is {H}")
         actions = actions.reshape((count, H, actions.shape[-1]))
-    out = _imagine_flat(model, params, start, H, key, actions, policy)
+    out = _imagine_flat(model, params, start, H, key, actions, policy, actor, actor_params)
     return jax.tree.map(lambda x: x.reshape(batch_shape + x.shape[1:]), out)
 
 
@@ -114,10 +193,14 @@ def _batch_shape(model: WorldModel, state: Any) -> tuple[int, ...]:
     return tuple(leaf.shape[: leaf.ndim - single.ndim])
 
 
-@functools.partial(jax.jit, static_argnames=("model", "H", "policy"))
+@functools.partial(jax.jit, static_argnames=("model", "H", "policy", "actor"))
 def _imagine_flat(model: WorldModel, params: dict, start: Any, H: int, key: jax.Array,
-                  actions: jax.Array | None, policy: Policy | None) -> dict:
+                  actions: jax.Array | None, policy: Policy | None,
+                  actor: Behaviour | None = None, actor_params: dict | None = None) -> dict:
     dyn = model.dynamics
+    if actor is not None:  # the actor's parameters are traced arguments, its networks static
+        def policy(feat, policy_key):
+            return actor.policy(actor_params, feat).sample(policy_key).astype(jnp.float32)
     keys = jax.random.split(key, jax.tree.leaves(start)[0].shape[0])
     if actions is not None:
         states = jax.vmap(dyn.rollout, in_axes=(None, 0, 0, 0))(

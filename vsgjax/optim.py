@@ -59,8 +59,11 @@ def release_weight_decay(weight_decay: float) -> optax.GradientTransformation:
     return optax.chain(optax.scale(1.0 - weight_decay), optax.add_decayed_weights(-weight_decay))
 
 
+RELEASE_RULE = OptimConfig()
+
+
 def make_optimizer(lr: float, eps: float, clip: float, weight_decay: float,
-                   rule: OptimConfig = OptimConfig()) -> optax.GradientTransformation:
+                   rule: OptimConfig = RELEASE_RULE) -> optax.GradientTransformation:
     """clip -> Adam (``rule.eps_placement``) -> lr -> weight decay (``rule.weight_decay``)."""
     if rule.eps_placement not in EPS_PLACEMENTS:
         raise ValueError(f"unknown optim.eps_placement {rule.eps_placement!r}; "
