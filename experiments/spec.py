@@ -12,6 +12,8 @@ An experiment file lists groups of runs and the figures or tables they feed::
     variant = ""                              # optional: an ablation's name ("nosparsity")
     method = ""                               # optional: its label ("VSG-NoSparsityLoss")
     overrides = []                            # optional: config overrides of the group
+    steps = 1_000_000                         # optional: the group's train.steps (default: the
+                                              # experiment's; --steps overrides both)
     [[figures]]                               # what experiments.report draws
     kind = "bars"
     at = [1_000_000, 2_500_000]
@@ -43,7 +45,7 @@ EVALUATION_FILE = "evaluation.jsonl"  # an evaluate job's episodes, one JSON obj
 KINDS = ("train", "evaluate", "rollouts")
 _TOP_KEYS = {"description", "reference", "steps", "seeds", "groups", "figures", "source",
              "episodes", "kind"}
-_GROUP_KEYS = {"tasks", "models", "variant", "method", "overrides"}
+_GROUP_KEYS = {"tasks", "models", "variant", "method", "overrides", "steps"}
 
 
 class ExperimentError(ValueError):
@@ -194,9 +196,14 @@ def _expand(name: str, path: Path, data: dict, size: str, seeds: int | None,
             steps: int | None) -> list[Run]:
     """Every task x model x seed of every group, in file order."""
     count = seeds if seeds is not None else int(data.get("seeds", 1))
-    total = steps if steps is not None else int(data["steps"])
     runs = []
-    for group in _groups(path, data):
+    for index, group in enumerate(_groups(path, data)):
+        if steps is not None:
+            total = steps
+        elif "steps" in group or "steps" in data:
+            total = int(group.get("steps", data.get("steps")))
+        else:
+            raise ExperimentError(f"{path}: group {index} has no steps (and no top-level steps)")
         for task in group["tasks"]:
             for model in group["models"]:
                 for seed in range(count):

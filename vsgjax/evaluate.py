@@ -7,6 +7,12 @@ and returns each episode's ``info`` (return, length, and env metrics such as Bri
 ``discovery/*``) plus the recorded episodes for videos.
 
     python -m vsgjax.evaluate runs/bbs_basic-vsg-s0 --episodes 10
+    python -m vsgjax.evaluate runs/bbs_basic-vsg-s0 --episodes 50 --output evaluation.jsonl
+
+``--output`` writes one JSON object per episode and line, as the trainer's
+``eval_episodes.jsonl``: ``{"step": <checkpoint env step>, "episode": i, "return": ...,
+"length": ..., "discovery/...": ...}`` with NaN written as ``null``. The file is written
+atomically once every episode has run, so a killed evaluation leaves no partial file.
 """
 
 from __future__ import annotations
@@ -137,6 +143,9 @@ def evaluate_logdir(logdir: Path, episodes: int | None = None, seed: int | None 
                     ) -> tuple[list[dict], int]:
     """Run the newest checkpoint of ``logdir`` -> (episode infos, checkpoint env step)."""
     config = load_config(logdir)
+    if not checkpoint.list_checkpoints(logdir / "checkpoints"):
+        raise FileNotFoundError(f"{logdir} has no checkpoint in {logdir / 'checkpoints'}: "
+                                "train the run first")
     seed = config.train.seed if seed is None else seed
     episodes = config.train.eval_episodes if episodes is None else episodes
     envs = make_env_batch(config.env, seed, config.env.eval_envs, eval=True)
@@ -154,6 +163,21 @@ def evaluate_logdir(logdir: Path, episodes: int | None = None, seed: int | None 
     return infos, restored.step  # checkpoints are numbered by env step
 
 
+def episode_records(infos: list[dict], step: int) -> list[dict]:
+    """One JSON-able record per episode: ``{"step", "episode", **info}``, NaN/inf -> None."""
+    return [{"step": step, "episode": index,
+             **{k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in info.items()}} for index, info in enumerate(infos)]
+
+
+def write_episodes(path: Path, infos: list[dict], step: int) -> Path:
+    """Write :func:`episode_records` as JSON lines to ``path`` atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = "".join(json.dumps(record) + "\n" for record in episode_records(infos, step))
+    return checkpoint.atomic_write(path, text.encode())
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vsgjax.evaluate", description=__doc__.split(
         "\n")[0])
@@ -162,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="episodes to run (default: the run's train.eval_episodes)")
     parser.add_argument("--seed", type=int, default=None,
                         help="evaluation env seed (default: the run's seed)")
+    parser.add_argument("--output", type=Path, default=None, metavar="PATH",
+                        help="also write the episodes as JSON lines to PATH (atomically)")
     args = parser.parse_args(argv)
     try:
         infos, env_steps = evaluate_logdir(args.logdir, args.episodes, args.seed)
@@ -171,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.logdir}: checkpoint at env step {env_steps}, {len(infos)} episodes, "
           "actor mode")
     print(format_table(infos))
+    if args.output is not None:
+        print(f"wrote {len(infos)} episodes to {write_episodes(args.output, infos, env_steps)}")
     return 0
 
 
