@@ -20,7 +20,9 @@ all. The manual is ``docs/reports.md``; in short:
 * **rollouts**: the images the rollouts jobs wrote.
 
 Binning: the grid spacing is the reference curves' (100k env steps for BringBackShapes, 50k
-for DMC; ``--bin`` overrides it; without reference data, the runs' ``train.eval_every``). An
+for DMC; ``--bin`` overrides it; without reference data, or when the runs are shorter than
+``FINE_GRID_BELOW`` reference bins (a ``--steps``-shortened debug version), the runs'
+``train.eval_every``). An
 evaluation at env step ``x`` falls into the bin of grid point ``spacing * ceil(x / spacing)``,
 the nearest grid point at or after it; when a seed has several evaluations in one bin, the
 latest (closest to the grid point) is its value there. Mean and std are over seeds (numpy's
@@ -82,6 +84,7 @@ DISCOVERY_COLUMNS = (
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".svg", ".pdf", ".mp4")
 INLINE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".svg")
 FIGURE_NOTE_RUNS = 6  # runs named in a figure's "missing" note before it says "and N more"
+FINE_GRID_BELOW = 20  # runs shorter than this many reference bins use their eval grid
 
 
 class ReportWarning(UserWarning):
@@ -352,8 +355,9 @@ class Context:
         name = experiment.reference
         if name and experiment.kind == "train":
             reference = load_reference(name, reference_dir)
+        steps = max((run.steps for run in experiment.runs), default=0)
         if spacing is None:
-            if reference is not None and reference.spacing > 0:
+            if reference is not None and steps >= FINE_GRID_BELOW * reference.spacing > 0:
                 spacing = reference.spacing
             elif experiment.runs:
                 spacing = float(experiment.runs[0].config().train.eval_every)
@@ -492,7 +496,8 @@ def curves_data(context: Context) -> CurvesData:
 
 def draw_curves(data: CurvesData, stem: Path, title: str = "") -> list[Path]:
     rows, columns = _panel_grid(len(data.tasks))
-    figure = Figure(figsize=(3.6 * columns, 2.8 * rows + 0.8), layout="constrained")
+    figure = Figure(figsize=(max(3.6 * columns, 7.0), 2.8 * rows + 0.8 + 0.3 * (columns < 2)),
+                    layout="constrained")
     axes = figure.subplots(rows, columns, squeeze=False)
     handles: dict[str, object] = {}
     for index, task in enumerate(data.tasks):
@@ -500,7 +505,8 @@ def draw_curves(data: CurvesData, stem: Path, title: str = "") -> list[Path]:
         for line in data.lines[task].values():
             c = colour(line.method, data.methods)
             if line.source == "ours":
-                (handle,) = ax.plot(line.x, line.mean, color=c, lw=1.6, label=line.label)
+                (handle,) = ax.plot(line.x, line.mean, color=c, lw=1.6, label=line.label,
+                                    marker="o" if len(line.x) <= 5 else None, ms=3)
                 ax.fill_between(line.x, line.mean - line.std, line.mean + line.std, color=c,
                                 alpha=0.2, lw=0)
             else:
@@ -524,7 +530,7 @@ def draw_curves(data: CurvesData, stem: Path, title: str = "") -> list[Path]:
         axes[index // columns][index % columns].set_visible(False)
     if handles:
         figure.legend(list(handles.values()), list(handles), loc="outside lower center",
-                      ncols=min(len(handles), 6), fontsize=8)
+                      ncols=min(len(handles), 6 if columns > 1 else 3), fontsize=8)
     figure.suptitle(title or f"learning curves (mean ± std over seeds, bins of "
                     f"{step_label(data.spacing)} steps)", fontsize=10)
     return save_figure(figure, stem)
