@@ -84,7 +84,7 @@ DISCOVERY_COLUMNS = (
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".svg", ".pdf", ".mp4")
 INLINE_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".svg")
 FIGURE_NOTE_RUNS = 6  # runs named in a figure's "missing" note before it says "and N more"
-FINE_GRID_BELOW = 20  # runs shorter than this many reference bins use their eval grid
+FINE_GRID_BELOW = 3  # runs shorter than this many reference bins use their eval grid
 
 
 class ReportWarning(UserWarning):
