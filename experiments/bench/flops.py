@@ -81,5 +81,13 @@ def jaxpr_flops(jaxpr: core.Jaxpr) -> int:
 
 
 def count_flops(fn, *args, **kwargs) -> int:
-    """FLOPs (matmuls and convolutions) of one call ``fn(*args, **kwargs)``."""
-    return jaxpr_flops(jax.make_jaxpr(fn, static_argnums=())(*args, **kwargs).jaxpr)
+    """FLOPs (matmuls and convolutions) of one call ``fn(*args, **kwargs)``.
+
+    ``fn`` is traced through a fresh wrapper: ``jax.make_jaxpr`` caches traces per function
+    object, so tracing ``fn`` itself a second time (e.g. with the convolutions patched) would
+    return the first trace.
+    """
+    def fresh(*a, **k):
+        return fn(*a, **k)
+
+    return jaxpr_flops(jax.make_jaxpr(fresh)(*args, **kwargs).jaxpr)
