@@ -182,6 +182,25 @@ def test_local_launch_interrupted_then_relaunched_skips_finished_and_resumes(two
     assert second.stdout.rstrip().endswith("two: 2 jobs: 2 done")
 
 
+@pytest.mark.slow
+def test_the_report_draws_the_launched_runs(two_runs, definitions):
+    """experiments.report on the runs the launcher trained: one curve per run, ending at its
+    train.steps, nothing missing; the experiment has no reference, so no paper curve."""
+    from experiments import report
+
+    experiment = load_experiment("two", "debug", paper_dir=definitions)
+    context = report.Context.create(experiment, two_runs["root"])
+    data = report.curves_data(context)
+    assert data.missing == [] and data.reference_drawn == []
+    lines = data.lines["bbs_basic"]
+    assert set(lines) == {"VSG", "VSG-long"}
+    assert [line.source for line in lines.values()] == ["ours", "ours"]
+    assert lines["VSG"].x[-1] >= SHORT and lines["VSG-long"].x[-1] >= LONG
+    assert lines["VSG-long"].x[-1] < LONG + context.spacing
+    written = report.draw_curves(data, two_runs["root"] / "curves")
+    assert {path.suffix for path in written} == {".png", ".pdf"}
+
+
 # --- the evaluate experiment and vsgjax.evaluate --output --------------------------------------
 
 
