@@ -39,17 +39,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from experiments.spec import (
-    DEFAULT_ROOT,
     EVALUATION_FILE,
     PAPER_DIR,
     Experiment,
     ExperimentError,
     Run,
+    add_selection_arguments,
     experiment_names,
     load_experiment,
 )
 from vsgjax import checkpoint
-from vsgjax.config import to_dict
+from vsgjax.config import config_changes, to_dict
 from vsgjax.host import allocator_env
 
 try:  # the slurm backend's requeueable job needs submitit (the "slurm" extra)
@@ -64,7 +64,6 @@ DONE_FILE = "launch.done"  # written when a rollouts job exits 0 (its "finished"
 COMMANDS_FILE = "commands.txt"
 SBATCH_FILE = "sbatch.sh"
 SUBMITIT_DIR = ".submitit"
-RESUMABLE_SECTIONS = ("train",)  # as vsgjax.train: only train.* may change between launches
 INSTALL_SLURM = 'the slurm backend needs submitit: pip install -e ".[slurm]"'
 STOP_TIMEOUT_S = 600  # how long a stopped job may take to save its checkpoint
 
@@ -218,19 +217,7 @@ def config_difference(run: Run, logdir: Path) -> list[str]:
         saved = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as error:
         return [f"config.json unreadable ({error})"]
-    wanted = _wanted_config(run)
-    changed = []
-    for section in sorted(set(wanted) | set(saved)):
-        if section in RESUMABLE_SECTIONS:
-            continue
-        new, old = wanted.get(section), saved.get(section)
-        if isinstance(new, dict) or isinstance(old, dict):
-            new, old = new or {}, old or {}
-            changed += [f"{section}.{key}: {old.get(key)!r} -> {new.get(key)!r}"
-                        for key in sorted(set(new) | set(old)) if old.get(key) != new.get(key)]
-        elif new != old:
-            changed.append(f"{section}: {old!r} -> {new!r}")
-    return changed
+    return config_changes(saved, _wanted_config(run))
 
 
 @functools.cache
@@ -727,19 +714,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m experiments.launch", description=__doc__.split("\n")[0],
         epilog="See docs/experiments.md.")
-    parser.add_argument("name", help="an experiment of --definitions (e.g. bbs_basic)")
+    add_selection_arguments(parser)
     parser.add_argument("--backend", default="local", choices=BACKENDS)
     parser.add_argument("--jobs", type=int, default=None,
                         help="jobs at a time (local: default 1; slurm / print: the array's "
                              "parallelism, default unlimited)")
-    parser.add_argument("--size", default="paper", help="paper, small or debug")
-    parser.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 of every run")
-    parser.add_argument("--steps", type=int, default=None, help="train.steps of every run")
-    parser.add_argument("--root", type=Path, default=DEFAULT_ROOT,
-                        help="log directories go to ROOT/<experiment>/... (default: runs)")
     parser.add_argument("--status", action="store_true", help="print the table, launch nothing")
-    parser.add_argument("--definitions", type=Path, default=PAPER_DIR,
-                        help="the directory of experiment files (default: experiments/paper)")
     parser.add_argument("--task", action="append", default=[],
                         help="only this task's runs (repeat or comma-separate)")
     parser.add_argument("--model", action="append", default=[],

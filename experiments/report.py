@@ -56,10 +56,10 @@ from matplotlib.figure import Figure  # noqa: E402
 from experiments.spec import (  # noqa: E402
     DEFAULT_ROOT,
     EVALUATION_FILE,
-    PAPER_DIR,
     Experiment,
     ExperimentError,
     Run,
+    add_selection_arguments,
     load_experiment,
 )
 
@@ -1184,16 +1184,9 @@ def _relative(path: Path, start: Path) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m experiments.report",
                                      description=__doc__.split("\n")[0])
-    parser.add_argument("name", help="an experiment of experiments/paper/")
-    parser.add_argument("--root", type=Path, default=DEFAULT_ROOT,
-                        help="where the runs are (default: %(default)s)")
+    add_selection_arguments(parser)  # the launch's options find the launch's runs
     parser.add_argument("--out", type=Path, default=None,
                         help="output directory (default: ROOT/NAME/report)")
-    parser.add_argument("--size", default="paper", help="the launch's --size (default: paper)")
-    parser.add_argument("--seeds", type=int, default=None, help="the launch's --seeds")
-    parser.add_argument("--steps", type=int, default=None, help="the launch's --steps")
-    parser.add_argument("--definitions", type=Path, default=PAPER_DIR,
-                        help="the directory of experiment files (default: experiments/paper)")
     parser.add_argument("--bin", type=float, default=None,
                         help="grid spacing in env steps (default: the reference's grid)")
     args = parser.parse_args(argv)

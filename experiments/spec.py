@@ -30,6 +30,7 @@ of any experiment that runs on a laptop. Every run has one log directory,
 
 from __future__ import annotations
 
+import argparse
 import sys
 import tomllib
 from dataclasses import dataclass
@@ -50,6 +51,19 @@ _GROUP_KEYS = {"tasks", "models", "variant", "method", "overrides", "steps"}
 
 class ExperimentError(ValueError):
     """A bad experiment name or definition; the message names the value and what is valid."""
+
+
+def add_selection_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options that pick an experiment's runs, shared by the launcher and the report:
+    ``NAME --size --seeds --steps --definitions --root``."""
+    parser.add_argument("name", help="an experiment of --definitions (e.g. bbs_basic)")
+    parser.add_argument("--size", default="paper", help="paper, small or debug (default: paper)")
+    parser.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 of every run")
+    parser.add_argument("--steps", type=int, default=None, help="train.steps of every run")
+    parser.add_argument("--definitions", type=Path, default=PAPER_DIR,
+                        help="the directory of experiment files (default: experiments/paper)")
+    parser.add_argument("--root", type=Path, default=DEFAULT_ROOT,
+                        help="the runs are in ROOT/<experiment>/... (default: runs)")
 
 
 def experiment_names(paper_dir: Path = PAPER_DIR) -> list[str]:

@@ -381,6 +381,27 @@ def _coerce(key: str, value, kind: type):
     return value
 
 
+RESUMABLE_SECTIONS = ("train",)  # the only config section a run may change when it resumes
+
+
+def config_changes(saved: dict, current: dict) -> list[str]:
+    """``section.key: saved -> current`` for every key outside :data:`RESUMABLE_SECTIONS`
+    where two :func:`to_dict` configs differ ([] when they agree): what makes a log directory
+    hold another run than ``current``."""
+    changed = []
+    for section in sorted(set(current) | set(saved)):
+        if section in RESUMABLE_SECTIONS:
+            continue
+        new, old = current.get(section), saved.get(section)
+        if isinstance(new, dict) or isinstance(old, dict):
+            new, old = new or {}, old or {}
+            changed += [f"{section}.{key}: {old.get(key)!r} -> {new.get(key)!r}"
+                        for key in sorted(set(new) | set(old)) if old.get(key) != new.get(key)]
+        elif new != old:
+            changed.append(f"{section}: {old!r} -> {new!r}")
+    return changed
+
+
 def to_dict(config: Config) -> dict:
     """A JSON-serialisable nested dict (saved as the run's resolved config)."""
     return dataclasses.asdict(config)

@@ -42,7 +42,15 @@ import numpy as np
 from vsgjax import checkpoint
 from vsgjax.agent import Agent
 from vsgjax.collect import Collector, EnvBatch, make_env_batch
-from vsgjax.config import MODELS, SIZES, Config, ConfigError, make_config, to_dict
+from vsgjax.config import (
+    MODELS,
+    SIZES,
+    Config,
+    ConfigError,
+    config_changes,
+    make_config,
+    to_dict,
+)
 from vsgjax.envs import TaskError, parse_task
 from vsgjax.evaluate import (
     Evaluator,
@@ -62,8 +70,6 @@ KEEP_CHECKPOINTS = 3
 # Shown on the progress bar after every update: the world-model loss and the per-pixel image
 # error, which falls visibly from the first updates (the image loss is dominated by a constant).
 PER_UPDATE = {"loss": "wm/loss", "mse": "wm/image_mse"}
-# Config sections that may change between a run and its resumption (not the model or env).
-RESUMABLE_SECTIONS = ("train",)
 
 COMPILATION_CACHE = Path.home() / ".cache" / "vsgjax" / "xla"
 MakeEnvs = Callable[..., EnvBatch]  # (env_cfg, seed, num_envs, *, eval) -> EnvBatch
@@ -224,11 +230,7 @@ class Trainer:
         path = self.logdir / "config.json"
         if not path.exists() or not checkpoint.list_checkpoints(self.ckpt_dir):
             return
-        saved, current = json.loads(path.read_text()), to_dict(self.config)
-        changed = [f"{section}.{k}: {saved.get(section, {}).get(k)!r} -> {v!r}"
-                   for section, values in current.items() if isinstance(values, dict)
-                   and section not in RESUMABLE_SECTIONS
-                   for k, v in values.items() if saved.get(section, {}).get(k) != v]
+        changed = config_changes(json.loads(path.read_text()), to_dict(self.config))
         if changed:
             raise ConfigError(f"{self.logdir} holds a run with a different config ("
                               + "; ".join(changed) + "); use another --logdir to start a new run")
