@@ -7,7 +7,9 @@ TASK    ?= bbs_basic
 MODEL   ?= vsg
 SIZE    ?= auto
 SEED    ?= 0
-LOGDIR  ?= runs/$(TASK)-$(MODEL)-s$(SEED)
+SEEDS   ?=
+# {seed} is filled in per seed (SEEDS=0,1,2 trains three seeds in one process)
+LOGDIR  ?= runs/$(TASK)-$(MODEL)-s{seed}
 ARGS    ?=
 PYTEST_ARGS ?=
 # Python with mimalloc preloaded (vsgjax/host.py: XLA:CPU's scratch space is reused instead of
@@ -40,10 +42,10 @@ lint: setup
 
 train: setup
 	$(RUN) -m vsgjax.train --task $(TASK) --model $(MODEL) \
-		--size $(SIZE) --seed $(SEED) --logdir $(LOGDIR) $(ARGS)
+		--size $(SIZE) --seed $(SEED) $(if $(SEEDS),--seeds $(SEEDS)) --logdir '$(LOGDIR)' $(ARGS)
 
 evaluate: setup
-	$(RUN) -m vsgjax.evaluate $(LOGDIR)
+	$(RUN) -m vsgjax.evaluate $(subst {seed},$(SEED),$(LOGDIR))
 
 clean:
 	rm -rf $(VENV) .pytest_cache

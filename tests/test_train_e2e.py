@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -106,10 +107,11 @@ def test_next_multiple_and_env_seeds():
     assert train.env_seed(7, 500) != train.env_seed(7, 600)
 
 
-def test_check_finite_names_update_and_bad_metrics():
-    train.check_finite({"wm/loss": 1.0}, 3, 120)
-    with pytest.raises(train.NonFiniteLossError, match=r"update 3 \(env step 120\).*wm/loss=nan"):
-        train.check_finite({"wm/loss": math.nan, "actor/loss": 0.5}, 3, 120)
+def test_non_finite_names_update_and_bad_metrics():
+    assert train.non_finite({"wm/loss": 1.0}, 3, 120) is None
+    problem = train.non_finite({"wm/loss": math.nan, "actor/loss": 0.5}, 3, 120)
+    assert re.search(r"update 3 \(env step 120\).*wm/loss=nan", problem)
+    assert "actor/loss" not in problem
 
 
 def test_logger_writes_null_for_nan_and_truncates_on_resume(tmp_path):
@@ -142,8 +144,8 @@ def test_non_finite_loss_stops_with_message_and_keeps_last_good_checkpoint(
         tmp_path, monkeypatch, capsys):
     """An update returning NaN at update 3 stops the run; checkpoints hold only updates <= 2."""
     def fake_train_step(self, state, batch, key):
-        loss = math.nan if int(state.step) == 2 else 1.0
-        return state._replace(step=state.step + 1), {"wm/loss": np.float32(loss)}
+        loss = jnp.where(state.step == 2, jnp.nan, 1.0)
+        return state._replace(step=state.step + 1), {"wm/loss": loss}
 
     monkeypatch.setattr(Agent, "train_step", fake_train_step)
     monkeypatch.setattr(train, "enable_compilation_cache", lambda: None)

@@ -219,12 +219,16 @@ def load(path: str | os.PathLike, target: Any) -> tuple[Any, dict]:
     return decode(Path(path).read_bytes(), target)
 
 
-def restore(directory: str | os.PathLike, target: Any) -> Checkpoint | None:
-    """The newest readable checkpoint in ``directory`` filled into ``target``, or None if none.
+def restore(directory: str | os.PathLike, target: Any,
+            max_step: int | None = None) -> Checkpoint | None:
+    """The newest readable checkpoint in ``directory`` filled into ``target``, or None if none;
+    with ``max_step``, the newest of a step up to it.
 
     Corrupt files are skipped with a warning naming them, falling back to older checkpoints.
     """
     for step, path in reversed(list_checkpoints(directory)):
+        if max_step is not None and step > max_step:
+            continue
         try:
             tree, meta = load(path, target)
         except (CorruptCheckpointError, OSError) as error:

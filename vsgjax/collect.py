@@ -153,6 +153,59 @@ def _env_info(infos: dict, index: int) -> dict[str, float]:
     return values
 
 
+class SeedEnvs:
+    """The env batches of S seeds stepped as one: observations and actions ``[S, N, ...]``.
+
+    Finished episodes are reported with the flat index ``seed * N + env``. The seeds' envs step
+    one batch after the other; ``experiments/bench/bench_seeds.py`` measures that collection
+    is a small part of the loop's time next to the S-seed update.
+    """
+
+    def __init__(self, batches: Sequence[EnvBatch]):
+        self.batches = list(batches)
+        self.spec, self.num_envs = self.batches[0].spec, self.batches[0].num_envs
+        if any(b.spec != self.spec or b.num_envs != self.num_envs for b in self.batches):
+            raise ValueError("every seed's env batch needs the same spec and number of envs")
+
+    def observation_struct(self) -> dict[str, jax.ShapeDtypeStruct]:
+        return {k: jax.ShapeDtypeStruct((len(self.batches), *v.shape), v.dtype)
+                for k, v in self.batches[0].observation_struct().items()}
+
+    def reset(self) -> dict[str, np.ndarray]:
+        return _stack_observations([batch.reset() for batch in self.batches])
+
+    def step(self, action: np.ndarray) -> dict[str, np.ndarray]:
+        return _stack_observations([b.step(a) for b, a in zip(self.batches, action, strict=True)])
+
+    @property
+    def finished(self) -> list[tuple[dict, int, dict]]:
+        return [(episode, seed * self.num_envs + index, info)
+                for seed, batch in enumerate(self.batches)
+                for episode, index, info in batch.finished]
+
+    @finished.setter
+    def finished(self, value: list) -> None:
+        if value:
+            raise ValueError("SeedEnvs.finished can only be cleared")
+        for batch in self.batches:
+            batch.finished = []
+
+    def drop(self, keep: Sequence[int]) -> None:
+        """Keep only the seeds at the positions ``keep`` (the others' envs are closed)."""
+        for position, batch in enumerate(self.batches):
+            if position not in keep:
+                batch.close()
+        self.batches = [self.batches[position] for position in keep]
+
+    def close(self) -> None:
+        for batch in self.batches:
+            batch.close()
+
+
+def _stack_observations(observations: list[dict]) -> dict[str, np.ndarray]:
+    return {key: np.stack([obs[key] for obs in observations]) for key in observations[0]}
+
+
 def make_env_batch(env_cfg: EnvConfig, seed: int, num_envs: int, *, eval: bool = False,
                    workers: bool | None = None) -> EnvBatch:
     """``num_envs`` envs of ``env_cfg.task`` seeded ``seed, seed + 1, ...``."""
@@ -183,9 +236,11 @@ class Collector:
 
     ``policy(params, carry, obs, key) -> (carry, action[N, A])`` is any jittable function over
     the batched observation dict; the step-``k`` key is ``jax.random.split(key, chunk)[k]``.
+    With :class:`SeedEnvs` the policy is vmapped over seeds (``[S, N, ...]``, keys ``[S, 2]``)
+    and the step-``k`` keys are each seed's own (:func:`step_keys`).
     """
 
-    def __init__(self, envs: EnvBatch, policy: Policy, *, chunk: int = DEFAULT_CHUNK,
+    def __init__(self, envs: EnvBatch | SeedEnvs, policy: Policy, *, chunk: int = DEFAULT_CHUNK,
                  mode: str = "loop", on_episode: OnEpisode | None = None):
         if mode not in MODES:
             raise ValueError(f"unknown collection mode {mode!r}; valid: {', '.join(MODES)}")
@@ -218,7 +273,7 @@ class Collector:
 
     def _loop(self, params, carry, key):
         steps = []
-        for step_key in np.asarray(jax.random.split(key, self.chunk)):
+        for step_key in np.asarray(step_keys(key, self.chunk)):
             carry, action = self._policy_step(params, carry, self._obs, step_key)
             action = np.asarray(action)
             self._obs = self.envs.step(action)
@@ -235,6 +290,14 @@ class Collector:
         self.envs.close()
 
 
+def step_keys(key: jax.Array, chunk: int) -> jax.Array:
+    """The ``chunk`` step keys of one chunk: ``split(key, chunk)`` of one key ``[2]``, or of
+    each of S seeds' keys ``[S, 2]`` (-> ``[chunk, S, 2]``: step k's keys of every seed)."""
+    if key.ndim == 1:
+        return jax.random.split(key, chunk)
+    return jnp.swapaxes(jax.vmap(jax.random.split, (0, None))(key, chunk), 0, 1)
+
+
 def _stream_entry(action, obs: dict) -> dict:
     return {"action": action, **{k: v for k, v in obs.items() if k != "image"}}
 
@@ -248,5 +311,5 @@ def _scan_chunk(policy: Policy, envs: EnvBatch, chunk: int, params, carry, obs, 
         obs = io_callback(envs.step, struct, action, ordered=True)
         return (carry, obs), _stream_entry(action, obs)
 
-    (carry, obs), stream = jax.lax.scan(body, (carry, obs), jax.random.split(key, chunk))
+    (carry, obs), stream = jax.lax.scan(body, (carry, obs), step_keys(key, chunk))
     return carry, obs, stream

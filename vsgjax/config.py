@@ -31,9 +31,11 @@ ALIGNMENTS = ("release", "next_state")  # ac.alignment: see vsgjax/behaviour.py
 ACTOR_GRADS = ("auto", "dynamics", "reinforce", "both")
 EPS_PLACEMENTS = ("release", "optax")  # optim.eps_placement: see vsgjax/optim.py
 WEIGHT_DECAYS = ("release", "adamw")  # optim.weight_decay: see vsgjax/optim.py
+PRECISIONS = ("float32", "bfloat16")  # model.precision: the dtype of matmuls and convolutions
 # String keys whose values are names from a fixed list (checked when a config is built).
 CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS,
-           "optim.eps_placement": EPS_PLACEMENTS, "optim.weight_decay": WEIGHT_DECAYS}
+           "optim.eps_placement": EPS_PLACEMENTS, "optim.weight_decay": WEIGHT_DECAYS,
+           "model.precision": PRECISIONS}
 
 
 class ConfigError(ValueError):
@@ -53,6 +55,9 @@ class ModelConfig:
     min_std: float = 0.1  # Gaussian std = 2*sigmoid(s/2) + min_std
     gate_mode: str = "sample"  # "sample" (the release: Bernoulli everywhere) or "threshold" (p>0.5)
     gate_bias: float = -1.0  # update-gate bias: p = sigmoid(u + gate_bias)
+    # dtype of the matmuls and convolutions (parameters, optimizer state, distributions, losses
+    # and returns stay float32); `python -m vsgjax.train` picks bfloat16 for `paper` on a GPU
+    precision: str = "float32"
 
 
 @dataclass(frozen=True)
@@ -142,6 +147,7 @@ class TrainConfig:
     log_every: int = 1_000  # env steps
     ckpt_every: int = 1_000  # updates
     video_every: int = 100_000  # env steps; open-loop prediction and eval videos
+    devices: int = 0  # devices the batch is sharded over (data parallel); 0: every visible one
 
 
 @dataclass(frozen=True)

@@ -60,10 +60,12 @@ def checkpoint_tree(state: AgentState, key: jax.Array) -> dict:
     return {"agent": state, "key": key}
 
 
-def restore_latest(ckpt_dir: Path, agent: Agent, key: jax.Array) -> checkpoint.Checkpoint | None:
-    """The newest readable checkpoint filled into the agent's structure, or None."""
+def restore_latest(ckpt_dir: Path, agent: Agent, key: jax.Array,
+                   max_step: int | None = None) -> checkpoint.Checkpoint | None:
+    """The newest readable checkpoint (of a step up to ``max_step``, if given) filled into the
+    agent's structure, or None."""
     target = checkpoint_tree(jax.eval_shape(agent.init, key), key)  # shapes only, no compute
-    return checkpoint.restore(ckpt_dir, target)
+    return checkpoint.restore(ckpt_dir, target, max_step)
 
 
 class Evaluator:

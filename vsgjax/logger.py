@@ -12,7 +12,7 @@ import math
 import os
 import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import imageio.v2 as imageio
@@ -108,10 +108,12 @@ class Progress:
     def update(self, env_steps: int) -> None:
         self._bar.update(env_steps - self._bar.n)
 
-    def show(self, values: Mapping[str, float]) -> None:
-        """Remember the values shown after the bar; refresh it at most once a second."""
+    def show(self, values: Mapping[str, float | Sequence[float]]) -> None:
+        """Remember the values shown after the bar (several seeds' values ``/`` apart, ``-``
+        for none yet); refresh it at most once a second."""
         for name, value in values.items():
-            self._fields[name] = f"{value:.3g}"
+            value = value if isinstance(value, Sequence) else [value]
+            self._fields[name] = "/".join("-" if math.isnan(v) else f"{v:.3g}" for v in value)
         now = time.monotonic()
         if now - self._last_refresh > 1.0:
             self._bar.set_postfix(self._fields, refresh=True)

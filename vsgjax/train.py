@@ -32,7 +32,7 @@ import math
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import jax
@@ -40,8 +40,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from vsgjax import checkpoint
-from vsgjax.agent import Agent
-from vsgjax.collect import Collector, EnvBatch, make_env_batch
+from vsgjax.agent import Agent, AgentState
+from vsgjax.collect import Collector, EnvBatch, SeedEnvs, make_env_batch
 from vsgjax.config import (
     MODELS,
     SIZES,
@@ -61,6 +61,7 @@ from vsgjax.evaluate import (
 )
 from vsgjax.host import allocator_line
 from vsgjax.logger import Logger, Progress, truncate_metrics
+from vsgjax.parallel import Parallel, resolve_devices, split_keys, stack, take
 from vsgjax.replay import EpisodeStore, Replay
 from vsgjax.videos import open_loop_video
 
@@ -93,8 +94,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--size", default="auto",
                         help=f"auto (small on CPU, paper on GPU) or one of {', '.join(SIZES)}")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--logdir", type=Path, default=None,
-                        help="default: runs/<task>-<model>-s<seed>")
+    parser.add_argument("--seeds", default=None,
+                        help="train several seeds in one process, e.g. 0,1,2 (overrides --seed)")
+    parser.add_argument("--logdir", default=None,
+                        help="default: runs/<task>-<model>-s{seed} ({seed} is filled in)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("overrides", nargs="*", metavar="key=value")
     return parser.parse_args(argv)
@@ -111,12 +114,56 @@ def resolve_size(size: str) -> tuple[str, str]:
     return ("paper", "auto: JAX sees a GPU") if has_gpu() else ("small", "auto: no GPU")
 
 
-def build_config(args: argparse.Namespace) -> tuple[Config, str]:
-    """The resolved config and a note on how the size was chosen; raises ConfigError/TaskError."""
-    size, why = resolve_size(args.size)
-    config = make_config(args.task, args.model, size, [f"train.seed={args.seed}", *args.overrides])
-    parse_task(config.env.task)
-    return config, why
+def parse_seeds(args: argparse.Namespace) -> tuple[list[int], list[str]]:
+    """The seeds to train (``--seeds 0,1,2``, ``train.seeds=[0,1,2]`` or ``--seed``) and the
+    overrides without ``train.seeds``; raises ConfigError for duplicates or negative seeds."""
+    texts = [args.seeds] if args.seeds is not None else []
+    overrides = []
+    for item in args.overrides:
+        key, _, value = item.partition("=")
+        if key.strip() == "train.seeds":
+            texts.append(value.strip().strip("[]"))
+        else:
+            overrides.append(item)
+    if len(texts) > 1:
+        raise ConfigError("give the seeds once: --seeds or train.seeds, not both")
+    if not texts:
+        return [args.seed], overrides
+    try:
+        seeds = [int(part) for part in texts[0].split(",")]
+    except ValueError:
+        raise ConfigError(f"seeds {texts[0]!r}: want comma-separated integers, e.g. 0,1,2"
+                          ) from None
+    if len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise ConfigError(f"seeds {texts[0]!r}: want distinct integers >= 0, e.g. 0,1,2")
+    return seeds, overrides
+
+
+def build_configs(args: argparse.Namespace, seeds: list[int],
+                  overrides: list[str]) -> tuple[list[Config], dict[str, str]]:
+    """One resolved config per seed and notes on how size and precision were chosen; raises
+    ConfigError/TaskError."""
+    size, size_note = resolve_size(args.size)
+    precision = []
+    precision_note = "as requested"
+    if not any(item.partition("=")[0].strip() == "model.precision" for item in overrides):
+        precision_note = "default"
+        if size == "paper" and has_gpu():
+            precision, precision_note = ["model.precision=bfloat16"], "auto: paper size on a GPU"
+    configs = [make_config(args.task, args.model, size,
+                           [f"train.seed={seed}", *precision, *overrides]) for seed in seeds]
+    parse_task(configs[0].env.task)
+    return configs, {"size": size_note, "precision": precision_note}
+
+
+def seed_logdirs(args: argparse.Namespace, seeds: list[int]) -> list[Path]:
+    """Each seed's log directory: ``--logdir`` with ``{seed}`` filled in (required for several
+    seeds), by default ``runs/<task>-<model>-s<seed>``."""
+    pattern = args.logdir or f"runs/{args.task}-{args.model}-s{{seed}}"
+    if len(seeds) > 1 and "{seed}" not in pattern:
+        raise ConfigError(f"--logdir {pattern!r} must contain {{seed}} when training several "
+                          "seeds (one log directory per seed), e.g. runs/bbs-vsg-s{seed}")
+    return [Path(pattern.replace("{seed}", str(seed))) for seed in seeds]
 
 
 def enable_compilation_cache() -> None:
@@ -138,11 +185,11 @@ def device_line() -> str:
 
 @dataclasses.dataclass
 class Counters:
-    """Progress of a run; saved in every checkpoint. Thresholds are in env steps."""
+    """The schedule of a run, shared by its seeds (they train in lockstep); saved in every
+    checkpoint, with the seed's own episode count beside it. Thresholds are in env steps."""
 
     agent_steps: int = 0
     updates: int = 0
-    episodes: int = 0
     train_start: int = -1  # agent step at which training began (-1 while prefilling)
     next_log: int = 0
     next_eval: int = 0  # the end of prefill, then every train.eval_every env steps after it
@@ -168,62 +215,51 @@ def env_seed(seed: int, agent_steps: int) -> int:
     return int(np.random.SeedSequence([seed, agent_steps]).generate_state(1)[0] % 2**31)
 
 
-def check_finite(metrics: dict, update: int, env_steps: int) -> None:
+def non_finite(metrics: dict, update: int, env_steps: int) -> str | None:
+    """What is non-finite in an update's metrics (None when everything is finite)."""
     bad = {k: float(v) for k, v in metrics.items() if not math.isfinite(float(v))}
-    if bad:
-        listed = ", ".join(f"{k}={v}" for k, v in sorted(bad.items()))
-        raise NonFiniteLossError(
-            f"non-finite metrics at update {update} (env step {env_steps}): {listed}")
+    if not bad:
+        return None
+    listed = ", ".join(f"{k}={v}" for k, v in sorted(bad.items()))
+    return f"non-finite metrics at update {update} (env step {env_steps}): {listed}"
 
 
-class Trainer:
-    """One training run in ``logdir`` (new or resumed); :meth:`run` trains to the end."""
+def check_seed_group(configs: list[Config], logdirs: list[Path]) -> None:
+    """The seeds of one run: distinct seeds and log directories, configs equal but the seed."""
+    seeds = [c.train.seed for c in configs]
+    if len(configs) != len(logdirs) or not configs:
+        raise ConfigError(f"{len(configs)} configs for {len(logdirs)} log directories")
+    if len(set(seeds)) != len(seeds) or len(set(logdirs)) != len(logdirs):
+        raise ConfigError(f"seeds {seeds} and log directories must be distinct")
+    shared = [to_dict(dataclasses.replace(c, train=dataclasses.replace(c.train, seed=0)))
+              for c in configs]
+    if any(other != shared[0] for other in shared):
+        raise ConfigError("the seeds of one run must share every config value but train.seed")
 
-    def __init__(self, config: Config, logdir: Path, *, make_envs: MakeEnvs = make_env_batch,
-                 progress: bool = True, out=print):
-        self._started = time.monotonic()
-        self.config, self.logdir, self.out = config, Path(logdir), out
-        train = config.train
+
+def group_label(seeds: list[int]) -> str:
+    return ",".join(map(str, seeds))
+
+
+class SeedRun:
+    """One seed's log directory and host state: replay, episode files, logs, scores, eval.
+
+    Each seed of a multi-seed run writes exactly what a single-seed run of that seed writes.
+    """
+
+    def __init__(self, config: Config, logdir: Path):
+        self.config, self.logdir, self.seed = config, Path(logdir), config.train.seed
         self.logdir.mkdir(parents=True, exist_ok=True)
         self.ckpt_dir = self.logdir / "checkpoints"
         self._check_config()
-        eval_envs = make_envs(config.env, train.seed, config.env.eval_envs, eval=True)
-        spec = eval_envs.spec
-        self.agent = Agent(config, spec.obs_shape, spec.action_dim, spec.discrete)
-        self.evaluator = Evaluator(self.agent, eval_envs)
-        self.key = jax.random.PRNGKey(train.seed)
-        restored = restore_latest(self.ckpt_dir, self.agent, self.key)
-        self.resumed = restored is not None
+        train = config.train
         self.replay = Replay(train.replay_capacity, train.length, train.seed, train.oversample_ends)
         self.store = EpisodeStore(self.logdir / "episodes")
-        self.scores = {"xs": [], "ys": []}
-        if restored is None:
-            self.state = self.agent.init(self.key)
-            self.counters = Counters()
-            self.key = jax.random.fold_in(self.key, 1)
-        else:
-            self._load(restored)
-        # Episodes on disk are data even without a checkpoint (a run killed before its first).
-        for episode in self.store.load(limit_steps=train.replay_capacity):
-            self.replay.add_episode(episode)
-        self._write_config()
-        # Records an interrupted run wrote after the restored step are dropped.
-        self.logger = Logger(self.logdir, resume_step=self.env_steps)
-        truncate_metrics(self.logdir / "eval_episodes.jsonl", self.env_steps)
-        self._write_scores()
-        envs = make_envs(config.env, env_seed(train.seed, self.counters.agent_steps),
-                         config.env.num_envs, eval=False)
-        chunk = max(1, train.train_every // config.env.num_envs)
-        self.collector = Collector(envs, acting_policy(self.agent, spec, "train"), chunk=chunk,
-                                   on_episode=self._on_episode)
-        self.carry = self.agent.initial_carry(config.env.num_envs)
-        self.progress = Progress(train.steps, self.env_steps, enabled=progress)
-        self._first_update = self.counters.updates + 1  # of this process: it compiles
-        self._window: list[dict] = []  # host metrics of the updates since the last log
-        self._window_episodes: list[dict] = []
-        self._last_log_time, self._last_log_step = time.monotonic(), self.env_steps
-
-    # --- setup -------------------------------------------------------------------------------
+        self.scores: dict = {"xs": [], "ys": []}
+        self.episodes = 0
+        self.checkpoint_path: Path | None = None
+        self.window: list[dict] = []  # host metrics of the updates since the last log
+        self.window_episodes: list[dict] = []
 
     def _check_config(self) -> None:
         """A logdir keeps its model and env config; only ``train.*`` may change on resume."""
@@ -235,41 +271,198 @@ class Trainer:
             raise ConfigError(f"{self.logdir} holds a run with a different config ("
                               + "; ".join(changed) + "); use another --logdir to start a new run")
 
-    def _write_config(self) -> None:
-        text = json.dumps(to_dict(self.config), indent=2)
-        checkpoint.atomic_write(self.logdir / "config.json", text.encode())
-
-    def _load(self, restored: checkpoint.Checkpoint) -> None:
-        self.state, self.key = restored.tree["agent"], restored.tree["key"]
-        meta = restored.meta
-        self.counters = Counters(**meta["counters"])
-        self.replay.rng = checkpoint.rng_from_state(meta["replay_rng"])
-        self.scores = meta["scores"]
+    def load(self, restored: checkpoint.Checkpoint) -> None:
+        self.replay.rng = checkpoint.rng_from_state(restored.meta["replay_rng"])
+        self.scores = restored.meta["scores"]
+        self.episodes = restored.meta["counters"].get("episodes", 0)
         self.checkpoint_path = restored.path
+
+    def open(self, agent: Agent, eval_envs: EnvBatch, env_steps: int) -> None:
+        """Reload the replay from episodes/, write config and scores, open the logs."""
+        # Episodes on disk are data even without a checkpoint (a run killed before its first).
+        for episode in self.store.load(limit_steps=self.config.train.replay_capacity):
+            self.replay.add_episode(episode)
+        checkpoint.atomic_write(self.logdir / "config.json",
+                                json.dumps(to_dict(self.config), indent=2).encode())
+        # Records an interrupted run wrote after the restored step are dropped.
+        self.logger = Logger(self.logdir, resume_step=env_steps)
+        truncate_metrics(self.logdir / "eval_episodes.jsonl", env_steps)
+        self.write_scores()
+        self.evaluator = Evaluator(agent, eval_envs)
+
+    def write_scores(self) -> None:
+        record = {"task": self.config.env.task, "method": METHOD_NAMES[self.config.model.name],
+                  "seed": str(self.seed), **self.scores}
+        checkpoint.atomic_write(self.logdir / "scores.jsonl", (json.dumps(record) + "\n").encode())
+
+    def on_episode(self, episode: dict, info: dict, env_steps: int) -> None:
+        self.store.write(episode)
+        self.replay.add_episode(episode)
+        self.episodes += 1
+        self.window_episodes.append(info)
+        self.logger.scalars(env_steps, info, prefix="episode")
+
+    def log(self, env_steps: int, shared: dict) -> dict:
+        """Write the train record of this log interval (means over its updates); returns it."""
+        record = {**shared, "episodes": self.episodes, "replay_steps": self.replay.num_steps}
+        if self.window:
+            record.update({k: float(np.mean([m[k] for m in self.window])) for k in self.window[0]})
+        if self.window_episodes:
+            record["return"] = float(np.mean([e["return"] for e in self.window_episodes]))
+        self.logger.scalars(env_steps, record, prefix="train")
+        self.window, self.window_episodes = [], []
+        return record
+
+    def record_eval(self, step: int, infos: list[dict]) -> dict:
+        summary = summarize(infos)
+        self.logger.scalars(step, summary, prefix="eval")
+        with open(self.logdir / "eval_episodes.jsonl", "a") as file:
+            for index, info in enumerate(infos):
+                file.write(json.dumps(_json_safe({"step": step, "episode": index, **info})) + "\n")
+        self.scores["xs"].append(float(step))
+        self.scores["ys"].append(summary["return"])
+        self.write_scores()
+        return summary
+
+    def save(self, env_steps: int, counters: Counters, state: AgentState, key) -> None:
+        meta = {"counters": {**dataclasses.asdict(counters), "episodes": self.episodes},
+                "replay_rng": checkpoint.rng_state(self.replay.rng), "scores": self.scores}
+        self.checkpoint_path = checkpoint.save(self.ckpt_dir, env_steps,
+                                               checkpoint_tree(state, key), meta,
+                                               keep=KEEP_CHECKPOINTS)
+
+    def last_good_checkpoint(self) -> str:
+        last = checkpoint.latest(self.ckpt_dir)
+        return f"the last good checkpoint is {last}" if last else "no checkpoint was saved yet"
+
+    def close(self) -> None:
+        self.evaluator.close()
+        self.logger.close()
+
+
+def restore_seeds(runs: list[SeedRun], agent: Agent) -> list[checkpoint.Checkpoint] | None:
+    """Every seed's checkpoint of one step (the newest they all have), or None for a new run.
+
+    The seeds save one after the other; a run killed between two saves resumes all of them
+    from the step before (``checkpoint.save`` then drops the newer one on the next save).
+    """
+    def restore(run: SeedRun, max_step: int | None = None):
+        return restore_latest(run.ckpt_dir, agent, jax.random.PRNGKey(run.seed), max_step)
+
+    restored = [restore(run) for run in runs]
+    if all(c is None for c in restored):
+        return None
+    missing = [run.seed for run, c in zip(runs, restored, strict=True) if c is None]
+    if missing:
+        raise ConfigError(
+            f"seeds {group_label(missing)} have no checkpoint while the other seeds have one; "
+            "the seeds of one process train in lockstep: train them in separate runs")
+    step = min(c.step for c in restored)
+    restored = [c if c.step == step else restore(run, step)
+                for run, c in zip(runs, restored, strict=True)]
+    counters = [{k: v for k, v in c.meta["counters"].items() if k != "episodes"} if c else None
+                for c in restored]
+    if any(c is None or c.step != step for c in restored) or any(
+            other != counters[0] for other in counters):
+        raise ConfigError(f"seeds {group_label([r.seed for r in runs])} have no common "
+                          f"checkpoint to resume from (newest common step {step}); resume them "
+                          "in separate runs")
+    return restored
+
+
+class Trainer:
+    """A training run of one or more seeds in one process (new or resumed).
+
+    ``configs`` (one per seed, equal but for ``train.seed``) and ``logdirs`` may be a single
+    config and directory. The seeds train in lockstep: their states are stacked and updated by
+    one vmapped program (:mod:`vsgjax.parallel`), their envs collect together, and each seed
+    keeps its own replay, PRNG stream, logs and checkpoints. :meth:`run` trains to the end.
+    """
+
+    def __init__(self, configs: Config | Sequence[Config], logdirs: Path | Sequence[Path], *,
+                 make_envs: MakeEnvs = make_env_batch, progress: bool = True, out=print):
+        self._started = time.monotonic()
+        configs = [configs] if isinstance(configs, Config) else list(configs)
+        logdirs = [Path(logdirs)] if isinstance(logdirs, str | Path) else list(map(Path, logdirs))
+        check_seed_group(configs, logdirs)
+        self.config, self.out = configs[0], out
+        train, env = self.config.train, self.config.env
+        self.runs = [SeedRun(c, d) for c, d in zip(configs, logdirs, strict=True)]
+        eval_envs = [make_envs(c.env, c.train.seed, env.eval_envs, eval=True) for c in configs]
+        spec = eval_envs[0].spec
+        self.agent = Agent(self.config, spec.obs_shape, spec.action_dim, spec.discrete)
+        self.devices = resolve_devices(self.config)
+        restored = restore_seeds(self.runs, self.agent)
+        self.resumed = restored is not None
+        if restored is None:
+            states = [self.agent.init(jax.random.PRNGKey(run.seed)) for run in self.runs]
+            keys = [jax.random.fold_in(jax.random.PRNGKey(run.seed), 1) for run in self.runs]
+            self.counters = Counters()
+        else:
+            states, keys = [c.tree["agent"] for c in restored], [c.tree["key"] for c in restored]
+            self.counters = Counters(**{k: v for k, v in restored[0].meta["counters"].items()
+                                        if k != "episodes"})
+            for run, ckpt in zip(self.runs, restored, strict=True):
+                run.load(ckpt)
+        for run, envs in zip(self.runs, eval_envs, strict=True):
+            run.open(self.agent, envs, self.env_steps)
+        self.parallel = Parallel(self.agent, len(self.runs), self.devices)
+        self.state = self.parallel.put_state(stack(states))
+        self.keys = jnp.stack(keys)
+        envs = SeedEnvs([make_envs(run.config.env, env_seed(run.seed, self.counters.agent_steps),
+                                   env.num_envs, eval=False) for run in self.runs])
+        chunk = max(1, train.train_every // env.num_envs)
+        self.collector = Collector(envs, jax.vmap(acting_policy(self.agent, spec, "train")),
+                                   chunk=chunk, on_episode=self._on_episode)
+        self.carry = stack([self.agent.initial_carry(env.num_envs)] * len(self.runs))
+        self.progress = Progress(train.steps, self.env_steps, enabled=progress)
+        self._first_update = self.counters.updates + 1  # of this process: it compiles
+        self._shown: dict[str, dict[int, float]] = {}  # progress-bar values per seed
+        self.stopped: list[int] = []  # seeds stopped on non-finite metrics
+        self._last_log_time, self._last_log_step = time.monotonic(), self.env_steps
 
     @property
     def env_steps(self) -> int:
         return self.counters.agent_steps * self.config.env.action_repeat
 
+    @property
+    def seeds(self) -> list[int]:
+        return [run.seed for run in self.runs]
+
+    def _prefix(self, run: SeedRun) -> str:
+        """``seed k: `` before a message about one seed, when a run has several."""
+        return f"seed {run.seed}: " if len(self.runs) > 1 or self.stopped else ""
+
     def describe(self) -> str:
         """Whether this run resumes, and from where."""
+        per_seed = lambda values: "/".join(str(v) for v in values)
         if not self.resumed:
-            found = f" ({self.replay.num_episodes} episodes already in episodes/)" if \
-                self.replay.num_episodes else ""
-            return f"starting a new run{found}"
-        return (f"resuming from {self.checkpoint_path.name}: env step {self.env_steps}, update "
-                f"{self.counters.updates}, replay {self.replay.num_steps} steps in "
-                f"{self.replay.num_episodes} episodes")
+            found = per_seed(run.replay.num_episodes for run in self.runs)
+            found = f" ({found} episodes already in episodes/)" if found.strip("0/") else ""
+            seeds = f" of seeds {group_label(self.seeds)}" if len(self.runs) > 1 else ""
+            return f"starting a new run{seeds}{found}"
+        return (f"resuming from {self.runs[0].checkpoint_path.name}: env step {self.env_steps}, "
+                f"update {self.counters.updates}, replay "
+                f"{per_seed(run.replay.num_steps for run in self.runs)} steps in "
+                f"{per_seed(run.replay.num_episodes for run in self.runs)} episodes")
 
     # --- the loop ----------------------------------------------------------------------------
 
-    def _next_key(self) -> jax.Array:
-        self.key, key = jax.random.split(self.key)
-        return key
+    def _next_keys(self) -> jax.Array:
+        """One fresh key per seed ``[S, 2]`` from each seed's own stream."""
+        self.keys, keys = split_keys(self.keys)
+        return keys
+
+    def _show(self, name: str, values: dict[int, float]) -> None:
+        """Show ``name`` on the progress bar for the seeds given (one value per seed, / apart)."""
+        shown = self._shown.setdefault(name, {})
+        shown.update(values)
+        self.progress.show({name: [shown.get(seed, math.nan) for seed in self.seeds]})
 
     @property
     def prefilling(self) -> bool:
-        return self.env_steps < self.config.train.prefill or self.replay.num_sequences == 0
+        return self.env_steps < self.config.train.prefill or any(
+            run.replay.num_sequences == 0 for run in self.runs)
 
     def run(self) -> int:
         """Train to ``train.steps`` env steps; returns the process exit code."""
@@ -287,6 +480,9 @@ class Trainer:
                      "same command to resume")
             return 128 + stop.received
         self.out(f"done: {self.env_steps} env steps, {self.counters.updates} updates")
+        if self.stopped:
+            self.out(f"seeds {group_label(self.stopped)} stopped early on non-finite metrics")
+            return 1
         return 0
 
     def iteration(self) -> None:
@@ -300,20 +496,17 @@ class Trainer:
 
     def collect(self) -> None:
         """One chunk of agent steps with the training policy (random while prefilling)."""
-        explore = jnp.asarray(self.prefilling)
+        explore = jnp.full((len(self.runs),), self.prefilling)
         # counted first, so episodes finishing in this chunk are logged at its end step
         self.counters.agent_steps += self.collector.chunk * self.collector.envs.num_envs
         self.carry, _ = self.collector.run((self.state.params, explore), self.carry,
-                                           self._next_key())
+                                           self._next_keys())
         self.progress.update(self.env_steps)
 
     def _on_episode(self, episode: dict, index: int, info: dict) -> None:
-        self.store.write(episode)
-        self.replay.add_episode(episode)
-        self.counters.episodes += 1
-        self._window_episodes.append(info)
-        self.logger.scalars(self.env_steps, info, prefix="episode")
-        self.progress.show({"ret": info["return"]})
+        run = self.runs[index // self.collector.envs.num_envs]
+        run.on_episode(episode, info, self.env_steps)
+        self._show("ret", {run.seed: info["return"]})
 
     def train_due(self) -> None:
         """The updates owed at the train ratio (the first one as soon as prefill ends)."""
@@ -324,9 +517,10 @@ class Trainer:
             c.train_start = c.agent_steps
             c.next_eval = self.env_steps  # the release evaluates when training starts
             pretrain = f", {train.pretrain} pretraining updates" if train.pretrain else ""
+            replay = "/".join(str(run.replay.num_steps) for run in self.runs)
             self.progress.write(
-                f"prefill done at env step {self.env_steps} ({self.replay.num_steps} steps in "
-                "replay); compiling the update (once per process; tens of seconds on a CPU)"
+                f"prefill done at env step {self.env_steps} ({replay} steps in replay); "
+                "compiling the update (once per process; tens of seconds on a CPU)"
                 f"{pretrain}, then training")
         due = train.pretrain + 1 + (c.agent_steps - c.train_start) // train.train_every
         while c.updates < due:
@@ -334,47 +528,72 @@ class Trainer:
 
     def update(self) -> None:
         started = time.monotonic()
-        batch = self.replay.sample(self.config.train.batch)
-        state, metrics = self.agent.train_step(self.state, batch, self._next_key())
+        batch = self.parallel.put_batch([run.replay.sample(self.config.train.batch)
+                                         for run in self.runs])
+        self.state, metrics = self.parallel.train_step(self.state, batch, self._next_keys())
         metrics = jax.device_get(metrics)
-        check_finite(metrics, self.counters.updates + 1, self.env_steps)
-        self.state = state
+        per_seed = [{k: v[i] for k, v in metrics.items()} for i in range(len(self.runs))]
+        problems = [non_finite(m, self.counters.updates + 1, self.env_steps) for m in per_seed]
+        if any(problems):
+            per_seed = self._stop_seeds(problems, per_seed)
         self.counters.updates += 1
-        self._window.append(metrics)
+        for run, seed_metrics in zip(self.runs, per_seed, strict=True):
+            run.window.append(seed_metrics)
         if self.counters.updates == self._first_update:
             self.progress.write(
                 f"update {self.counters.updates} took {time.monotonic() - started:.0f} s with "
                 f"its compilation ({time.monotonic() - self._started:.0f} s after start)")
         # the latest update's losses on the bar, between the averaged log lines
-        self.progress.show({"upd": self.counters.updates,
-                            **{short: metrics[k] for short, k in PER_UPDATE.items()
-                               if k in metrics}})
+        self.progress.show({"upd": self.counters.updates})
+        for short, key in PER_UPDATE.items():
+            if key in per_seed[0]:
+                self._show(short, {run.seed: m[key]
+                                   for run, m in zip(self.runs, per_seed, strict=True)})
+
+    def _stop_seeds(self, problems: list[str | None], per_seed: list[dict]) -> list[dict]:
+        """Stop the seeds whose update was non-finite (their state is not kept); the others go
+        on. Raises NonFiniteLossError when none is left. Returns the metrics of those kept."""
+        keep = [i for i, problem in enumerate(problems) if problem is None]
+        for run, problem in zip(self.runs, problems, strict=True):
+            if problem is not None:
+                self.stopped.append(run.seed)
+                others = "; the other seeds go on" if keep else ""
+                print(f"error: {self._prefix(run)}training stopped: {problem}; the non-finite "
+                      f"state was not saved; {run.last_good_checkpoint()}{others}",
+                      file=sys.stderr, flush=True)
+                run.close()
+        if not keep:
+            raise NonFiniteLossError(f"seeds {group_label(self.stopped)} stopped")
+        self.runs = [self.runs[i] for i in keep]
+        self.collector.envs.drop(keep)
+        try:
+            self.parallel = Parallel(self.agent, len(keep), self.devices)
+        except ConfigError:  # the batch no longer splits over the devices left to each seed
+            self.parallel = Parallel(self.agent, len(keep), math.gcd(len(keep), self.devices))
+        self.state = self.parallel.put_state(take(self.state, keep))
+        self.keys, self.carry = self.keys[jnp.asarray(keep)], take(self.carry, keep)
+        return [per_seed[i] for i in keep]
 
     def maybe_log(self) -> None:
         if self.env_steps < self.counters.next_log:
             return
         self.counters.next_log = next_multiple(self.env_steps, self.config.train.log_every)
         now = time.monotonic()
-        record = {"env_steps_per_s": (self.env_steps - self._last_log_step)
-                  / max(now - self._last_log_time, 1e-9),
-                  "updates": self.counters.updates, "episodes": self.counters.episodes,
-                  "replay_steps": self.replay.num_steps}
-        if self._window:
-            record.update({k: float(np.mean([m[k] for m in self._window]))
-                           for k in self._window[0]})
-        if self._window_episodes:
-            record["return"] = float(np.mean([e["return"] for e in self._window_episodes]))
-        self.logger.scalars(self.env_steps, record, prefix="train")
+        shared = {"env_steps_per_s": (self.env_steps - self._last_log_step)
+                  / max(now - self._last_log_time, 1e-9), "updates": self.counters.updates}
+        records = [run.log(self.env_steps, shared) for run in self.runs]
         shown = {"ret": "return", **PER_UPDATE, "rew": "wm/reward_loss", "kl": "wm/kl",
                  "actor": "actor/loss", "critic": "critic/loss"}
-        values = {short: record[k] for short, k in shown.items() if k in record}
-        self.progress.show(values)
+        shown = {short: [r.get(key, math.nan) for r in records] for short, key in shown.items()
+                 if any(key in r for r in records)}
+        for short, values in shown.items():
+            self._show(short, dict(zip(self.seeds, values, strict=True)))
         if not self.progress.enabled:  # a line per log instead of the bar
             parts = [f"updates {self.counters.updates}",
-                     f"{record['env_steps_per_s']:.1f} steps/s",
-                     *(f"{k} {v:.3g}" for k, v in values.items())]
+                     f"{shared['env_steps_per_s']:.1f} steps/s",
+                     *(f"{short} " + "/".join(f"{v:.3g}" for v in values)
+                       for short, values in shown.items())]
             self.progress.write(f"train env step {self.env_steps:>9}: " + ", ".join(parts))
-        self._window, self._window_episodes = [], []
         self._last_log_time, self._last_log_step = now, self.env_steps
 
     def maybe_evaluate(self) -> None:
@@ -384,48 +603,40 @@ class Trainer:
             c.next_eval = next_on_grid(c.next_eval, self.env_steps, self.config.train.eval_every)
 
     def evaluate(self) -> None:
-        """``eval_episodes`` episodes of the actor's mode -> scores, episode metrics, videos."""
+        """``eval_episodes`` episodes of each seed's actor mode -> scores, episodes, videos."""
         train, step = self.config.train, self.env_steps
-        infos, episodes = self.evaluator.run(self.state.params, train.eval_episodes,
-                                             self._next_key())
-        summary = summarize(infos)
+        keys = self._next_keys()
+        recorded = []
+        for i, run in enumerate(self.runs):
+            infos, episodes = run.evaluator.run(take(self.state.params, i), train.eval_episodes,
+                                                keys[i])
+            summary = run.record_eval(step, infos)
+            recorded.append(episodes[0])
+            self.progress.write(f"{self._prefix(run)}eval  env step {step:>9}: return "
+                                f"{summary['return']:.3f} ± {summary['return_std']:.3f} over "
+                                f"{len(infos)} episodes")
+            self._show("eval", {run.seed: summary["return"]})
         self.counters.last_eval = step
-        self.logger.scalars(step, summary, prefix="eval")
-        with open(self.logdir / "eval_episodes.jsonl", "a") as file:
-            for index, info in enumerate(infos):
-                file.write(json.dumps(_json_safe({"step": step, "episode": index, **info})) + "\n")
-        self.scores["xs"].append(float(step))
-        self.scores["ys"].append(summary["return"])
-        self._write_scores()
-        self.progress.write(f"eval  env step {step:>9}: return {summary['return']:.3f} "
-                            f"± {summary['return_std']:.3f} over {len(infos)} episodes")
-        self.progress.show({"eval": summary["return"]})
         if step >= self.counters.next_video:
             self.counters.next_video = next_multiple(step, train.video_every)
-            self.logger.video("eval", step, episodes[0]["image"])
-            frames = open_loop_video(self.config, self.state.params["wm"], episodes[0],
-                                     self._next_key())
-            if frames is not None:
-                self.logger.video("open_loop", step, frames, fps=10)
-
-    def _write_scores(self) -> None:
-        record = {"task": self.config.env.task, "method": METHOD_NAMES[self.config.model.name],
-                  "seed": str(self.config.train.seed), **self.scores}
-        checkpoint.atomic_write(self.logdir / "scores.jsonl", (json.dumps(record) + "\n").encode())
+            keys = self._next_keys()
+            for i, (run, episode) in enumerate(zip(self.runs, recorded, strict=True)):
+                run.logger.video("eval", step, episode["image"])
+                frames = open_loop_video(self.config, take(self.state.params["wm"], i), episode,
+                                         keys[i])
+                if frames is not None:
+                    run.logger.video("open_loop", step, frames, fps=10)
 
     def save(self) -> None:
         self.counters.last_ckpt_updates = self.counters.updates
-        meta = {"counters": dataclasses.asdict(self.counters),
-                "replay_rng": checkpoint.rng_state(self.replay.rng), "scores": self.scores}
-        self.checkpoint_path = checkpoint.save(self.ckpt_dir, self.env_steps,
-                                               checkpoint_tree(self.state, self.key), meta,
-                                               keep=KEEP_CHECKPOINTS)
+        for i, run in enumerate(self.runs):
+            run.save(self.env_steps, self.counters, take(self.state, i), self.keys[i])
 
     def close(self) -> None:
         self.progress.close()
         self.collector.close()
-        self.evaluator.close()
-        self.logger.close()
+        for run in self.runs:
+            run.close()
 
 
 def _json_safe(record: dict) -> dict:
@@ -437,28 +648,31 @@ def _json_safe(record: dict) -> dict:
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
-        config, size_note = build_config(args)
+        seeds, overrides = parse_seeds(args)
+        configs, notes = build_configs(args, seeds, overrides)
+        logdirs = seed_logdirs(args, seeds)
     except (ConfigError, TaskError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     enable_compilation_cache()
-    logdir = args.logdir or Path("runs") / f"{args.task}-{args.model}-s{args.seed}"
+    config = configs[0]
     print(f"vsgjax train: task={config.env.task} model={config.model.name} size={config.size} "
-          f"({size_note}) seed={config.train.seed} steps={config.train.steps}", flush=True)
-    print(f"device: {device_line()}\n{allocator_line()}\nlogdir: {logdir}", flush=True)
+          f"({notes['size']}) {'seeds' if len(seeds) > 1 else 'seed'}={group_label(seeds)} "
+          f"steps={config.train.steps} precision={config.model.precision} "
+          f"({notes['precision']})", flush=True)
+    print(f"device: {device_line()}\n{allocator_line()}\nlogdir: "
+          + ", ".join(map(str, logdirs)), flush=True)
     try:
-        trainer = Trainer(config, logdir, progress=not args.no_progress)
+        trainer = Trainer(configs, logdirs, progress=not args.no_progress)
     except ConfigError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     try:
         print(trainer.describe(), flush=True)
+        if len(seeds) > 1 or trainer.parallel.mesh_shape != (1, 1):
+            print(trainer.parallel.describe(), flush=True)
         return trainer.run()
-    except NonFiniteLossError as error:
-        last = checkpoint.latest(trainer.ckpt_dir)
-        kept = f"the last good checkpoint is {last}" if last else "no checkpoint was saved yet"
-        print(f"error: training stopped: {error}; the non-finite state was not saved; {kept}",
-              file=sys.stderr)
+    except NonFiniteLossError:  # each seed's reason and last checkpoint are printed already
         return 1
     finally:
         trainer.close()
