@@ -271,6 +271,12 @@ class Collector:
         self._deliver_episodes()
         return carry, jax.tree.map(np.asarray, stream)
 
+    def drop_seeds(self, keep: Sequence[int]) -> None:
+        """With :class:`SeedEnvs`: keep only the seeds at the positions ``keep``."""
+        self.envs.drop(keep)
+        if self._obs is not None:
+            self._obs = {key: value[np.asarray(keep)] for key, value in self._obs.items()}
+
     def _loop(self, params, carry, key):
         steps = []
         for step_key in np.asarray(step_keys(key, self.chunk)):

@@ -61,7 +61,7 @@ from vsgjax.evaluate import (
 )
 from vsgjax.host import allocator_line
 from vsgjax.logger import Logger, Progress, truncate_metrics
-from vsgjax.parallel import Parallel, resolve_devices, split_keys, stack, take
+from vsgjax.parallel import Parallel, mesh_shape, resolve_devices, split_keys, stack, take
 from vsgjax.replay import EpisodeStore, Replay
 from vsgjax.videos import open_loop_video
 
@@ -387,11 +387,12 @@ class Trainer:
         check_seed_group(configs, logdirs)
         self.config, self.out = configs[0], out
         train, env = self.config.train, self.config.env
+        self.devices = resolve_devices(self.config)
+        mesh_shape(len(configs), self.devices, train.batch)  # raises if the batch cannot split
         self.runs = [SeedRun(c, d) for c, d in zip(configs, logdirs, strict=True)]
         eval_envs = [make_envs(c.env, c.train.seed, env.eval_envs, eval=True) for c in configs]
         spec = eval_envs[0].spec
         self.agent = Agent(self.config, spec.obs_shape, spec.action_dim, spec.discrete)
-        self.devices = resolve_devices(self.config)
         restored = restore_seeds(self.runs, self.agent)
         self.resumed = restored is not None
         if restored is None:
@@ -565,7 +566,7 @@ class Trainer:
         if not keep:
             raise NonFiniteLossError(f"seeds {group_label(self.stopped)} stopped")
         self.runs = [self.runs[i] for i in keep]
-        self.collector.envs.drop(keep)
+        self.collector.drop_seeds(keep)
         try:
             self.parallel = Parallel(self.agent, len(keep), self.devices)
         except ConfigError:  # the batch no longer splits over the devices left to each seed
