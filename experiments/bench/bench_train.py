@@ -10,7 +10,7 @@ default train ratio (one update per ``train_every`` agent steps; evaluation disa
 episode writing and checkpointing as configured). The same amounts of work are then timed bare:
 
 * env: the same number of agent steps of a plain gymnasium env with random actions;
-* train: the same number of ``Agent.train_step`` calls on replay batches (compiled already);
+* train: the same number of the trainer's update calls on replay batches (compiled already);
 * policy: the same number of jitted ``policy_step`` calls on one observation.
 
 overhead = loop - (env + train + policy): the collection boundary (io_callback, episode
@@ -31,6 +31,7 @@ import numpy as np
 
 from vsgjax.config import make_config
 from vsgjax.envs import make_env
+from vsgjax.parallel import take
 from vsgjax.train import Trainer, enable_compilation_cache
 
 TASKS = ("dmc_walker_walk", "bbs_basic")
@@ -78,11 +79,15 @@ def time_env(task_config, steps: int) -> float:
 
 
 def time_train(trainer: Trainer, updates: int) -> float:
-    state, total = trainer.state, 0.0
+    """Seconds of ``updates`` of the trainer's (one-seed) update on replay batches."""
+    total, replay = 0.0, trainer.runs[0].replay
+    keys = np.asarray(trainer.keys)
     for _ in range(updates):
-        batch = trainer.replay.sample(trainer.config.train.batch)  # sampling not timed
+        batch = trainer.parallel.put_batch([replay.sample(trainer.config.train.batch)])
+        state = jax.tree.map(lambda leaf: leaf.copy(), trainer.state)  # the update donates it
+        jax.block_until_ready((batch, state))  # copying and sampling are not timed
         started = time.perf_counter()
-        state, metrics = trainer.agent.train_step(state, batch, jax.random.PRNGKey(0))
+        _, metrics = trainer.parallel.train_step(state, batch, keys)
         jax.block_until_ready(metrics)
         total += time.perf_counter() - started
     return total
@@ -90,13 +95,14 @@ def time_train(trainer: Trainer, updates: int) -> float:
 
 def time_policy(trainer: Trainer, steps: int) -> float:
     agent, spec = trainer.agent, trainer.collector.envs.spec
+    params = take(trainer.state.params, 0)
     carry = agent.initial_carry(1)
     obs = {"image": np.zeros((1, *spec.obs_shape), np.uint8), "is_first": np.zeros(1, bool)}
     key = jax.random.PRNGKey(0)
-    jax.block_until_ready(agent.policy_step(trainer.state.params, carry, obs, key))
+    jax.block_until_ready(agent.policy_step(params, carry, obs, key))
     started = time.perf_counter()
     for _ in range(steps):
-        carry, action = agent.policy_step(trainer.state.params, carry, obs, key)
+        carry, action = agent.policy_step(params, carry, obs, key)
         np.asarray(action)
     return time.perf_counter() - started
 
@@ -116,7 +122,7 @@ def bench_task(task: str, size: str) -> dict:
                 "env": statistics.median(time_env(trainer.config, window) for _ in range(REPEATS)),
                 "train": statistics.median(time_train(trainer, updates) for _ in range(REPEATS)),
                 "policy": statistics.median(time_policy(trainer, window) for _ in range(REPEATS)),
-                "bytes_per_step": trainer.replay.bytes_per_step,
+                "bytes_per_step": trainer.runs[0].replay.bytes_per_step,
             }
         finally:
             trainer.close()
