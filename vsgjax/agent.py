@@ -63,7 +63,7 @@ class Agent:
     @property
     def behaviour(self) -> bhv.Behaviour:
         return bhv.Behaviour(self.config.ac, self.config.wm.mlp_units, self.action_dim,
-                             self.discrete)
+                             self.discrete, self.config.model.precision)
 
     @property
     def optimizers(self) -> dict[str, optax.GradientTransformation]:

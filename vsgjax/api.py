@@ -129,7 +129,7 @@ class TrainedParams:
     def behaviour(self) -> Behaviour:
         """The actor-critic networks these params belong to (static, hashable)."""
         return Behaviour(self.config.ac, self.config.wm.mlp_units, self.action_dim,
-                         self.discrete)
+                         self.discrete, self.config.model.precision)
 
 
 def imagine(params: dict | TrainedParams, state: Any, H: int = 15, *,

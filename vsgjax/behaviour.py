@@ -77,6 +77,7 @@ from jax.scipy.special import ndtri
 
 from vsgjax.config import ACTOR_GRADS, ALIGNMENTS, BehaviourConfig
 from vsgjax.networks import MLP, normal_log_prob
+from vsgjax.precision import compute_dtype
 
 sg = jax.lax.stop_gradient
 
@@ -180,13 +181,16 @@ class Behaviour:
     """Actor and critic networks for one action space; hashable, so usable as a jit static arg.
 
     ``units`` is the width of the hidden layers (the config's ``wm.mlp_units``: the paper uses
-    400 for every MLP).
+    400 for every MLP). ``precision`` (the config's ``model.precision``) is the compute dtype of
+    the actor's and critic's matmuls (:mod:`vsgjax.precision`); their outputs, the action
+    distributions, returns and losses are float32.
     """
 
     cfg: BehaviourConfig
     units: int
     action_dim: int
     discrete: bool
+    precision: str = "float32"
 
     def __post_init__(self):
         if self.cfg.actor_grad not in ACTOR_GRADS:
@@ -199,10 +203,16 @@ class Behaviour:
         if self.cfg.alignment not in ALIGNMENTS:
             raise ValueError(f"unknown ac.alignment {self.cfg.alignment!r}; "
                              f"valid: {', '.join(ALIGNMENTS)}")
+        _ = self.dtype  # raises on an unknown precision
         if self.imagined_steps < 1:
             raise ValueError(f"ac.horizon {self.cfg.horizon} leaves no imagined step with "
                              f"ac.alignment={self.cfg.alignment}; valid: horizon >= "
                              f"{2 if self.release else 1}")
+
+    @property
+    def dtype(self) -> jnp.dtype:
+        """Compute dtype of the actor's and critic's matmuls (``precision``)."""
+        return compute_dtype(self.precision)
 
     @property
     def release(self) -> bool:
@@ -237,11 +247,11 @@ class Behaviour:
     @property
     def actor_net(self) -> MLP:
         outputs = self.action_dim if self.discrete else 2 * self.action_dim
-        return MLP(self.cfg.actor_layers, self.units, (outputs,))
+        return MLP(self.cfg.actor_layers, self.units, (outputs,), self.dtype)
 
     @property
     def critic_net(self) -> MLP:
-        return MLP(self.cfg.critic_layers, self.units, ())
+        return MLP(self.cfg.critic_layers, self.units, (), self.dtype)
 
     def init(self, key: jax.Array, feat_dim: int) -> dict:
         """{"actor": params, "critic": params, "slow_critic": copy of the critic}."""

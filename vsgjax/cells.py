@@ -11,7 +11,9 @@ update ``u``::
           h = g ⊙ ĉ + (1 - g) ⊙ h_prev  (a closed gate copies h_prev bit for bit)
 
 Parameters are plain dicts built by the ``*_init`` functions; the small dense / LayerNorm
-helpers here are also the building blocks of :mod:`vsgjax.dynamics`.
+helpers here are also the building blocks of :mod:`vsgjax.dynamics`. ``dtype`` arguments are
+the compute dtype of the dense layer's matmul (:mod:`vsgjax.precision`); everything else, the
+gate sample included, is float32.
 """
 
 from __future__ import annotations
@@ -20,6 +22,8 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+
+from vsgjax.precision import matmul
 
 GATE_MODES = ("sample", "threshold")
 LAYER_NORM_EPS = 1e-3  # tf.keras LayerNormalization default, as in the released code
@@ -35,9 +39,10 @@ def dense_init(key: jax.Array, in_dim: int, out_dim: int, bias: bool = True) -> 
     return params
 
 
-def dense(params: dict, x: jax.Array) -> jax.Array:
-    """``x @ kernel (+ bias)`` on the last axis; any leading axes."""
-    y = x @ params["kernel"]
+def dense(params: dict, x: jax.Array, dtype=jnp.float32) -> jax.Array:
+    """``x @ kernel (+ bias)`` on the last axis (matmul in ``dtype``, float32 out); any leading
+    axes."""
+    y = matmul(x, params["kernel"], dtype)
     return y + params["bias"] if "bias" in params else y
 
 
@@ -61,19 +66,20 @@ def cell_init(key: jax.Array, input_dim: int, state_dim: int, norm: bool) -> dic
 
 
 def _candidate_and_logit(
-    params: dict, h_prev: jax.Array, x: jax.Array, gate_bias: float
+    params: dict, h_prev: jax.Array, x: jax.Array, gate_bias: float, dtype
 ) -> tuple[jax.Array, jax.Array]:
     """Candidate ``ĉ`` and update-gate logit ``u + gate_bias``."""
-    pre = dense(params["dense"], jnp.concatenate([x, h_prev], -1))
+    pre = dense(params["dense"], jnp.concatenate([x, h_prev], -1), dtype)
     if "norm" in params:
         pre = layer_norm(params["norm"], pre)
     reset, cand, update = jnp.split(pre, 3, axis=-1)
     return jnp.tanh(jax.nn.sigmoid(reset) * cand), update + gate_bias
 
 
-def gru_cell(params: dict, h_prev: jax.Array, x: jax.Array, gate_bias: float = -1.0) -> jax.Array:
+def gru_cell(params: dict, h_prev: jax.Array, x: jax.Array, gate_bias: float = -1.0,
+             dtype=jnp.float32) -> jax.Array:
     """DreamerV2 GRU step: ``h = p ⊙ ĉ + (1 - p) ⊙ h_prev`` with ``p = σ(u + gate_bias)``."""
-    cand, logit = _candidate_and_logit(params, h_prev, x, gate_bias)
+    cand, logit = _candidate_and_logit(params, h_prev, x, gate_bias, dtype)
     p = jax.nn.sigmoid(logit)
     return p * cand + (1.0 - p) * h_prev
 
@@ -132,8 +138,9 @@ def sparse_gru_cell(
     key: jax.Array,
     gate_bias: float = -1.0,
     mode: str = "sample",
+    dtype=jnp.float32,
 ) -> SparseCellOutput:
     """VSG step: per-unit hard gate ``g``; open units take ``ĉ``, closed units keep ``h_prev``."""
-    cand, logit = _candidate_and_logit(params, h_prev, x, gate_bias)
+    cand, logit = _candidate_and_logit(params, h_prev, x, gate_bias, dtype)
     gate = straight_through_gate(logit, key, mode)
     return SparseCellOutput(gated_update(gate, cand, h_prev), cand, gate, logit)

@@ -2,6 +2,8 @@
 
 All modules accept any number of leading batch dimensions. Kernels use Glorot-uniform
 initialisation (the TensorFlow default the released code relied on); activations are ELU.
+Every module's ``dtype`` is the compute dtype of its matmuls (:mod:`vsgjax.precision`):
+parameters are float32 and every output is float32.
 
 Shapes for 64x64 images and depth ``d``::
 
@@ -14,10 +16,13 @@ Shapes for 64x64 images and depth ``d``::
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+
+from vsgjax.precision import matmul
 
 _GLOROT = nn.initializers.xavier_uniform()
 ENCODER_KERNELS = (4, 4, 4, 4)
@@ -48,43 +53,47 @@ class ConvEncoder(nn.Module):
     """[..., H, W, C] float image -> [..., embed] (four stride-2 VALID convolutions)."""
 
     depth: int
+    dtype: Any = jnp.float32
 
     @nn.compact
     def __call__(self, image: jax.Array) -> jax.Array:
         x = image
         for i, kernel in enumerate(ENCODER_KERNELS):
-            x = Conv2(self.depth * 2**i, kernel)(x)
+            x = Conv2(self.depth * 2**i, kernel, self.dtype)(x)
             x = nn.elu(x)
         return x.reshape(x.shape[:-3] + (-1,))
 
 
-def conv_stride2(x: jax.Array, kernel: jax.Array) -> jax.Array:
+def conv_stride2(x: jax.Array, kernel: jax.Array, dtype=jnp.float32) -> jax.Array:
     """Stride-2 VALID convolution (correlation) as one matmul over im2col patches.
 
     ``x`` [..., h, w, Cin], ``kernel`` [K, K, Cin, Cout] -> [..., (h-K)//2+1, (w-K)//2+1, Cout].
     On the CPU this beats XLA's native convolution for every encoder layer (up to 10x for the
-    small-spatial, many-channel last layer), forward and backward.
+    small-spatial, many-channel last layer), forward and backward. ``dtype``: the matmul's
+    compute dtype (:func:`vsgjax.precision.matmul`).
     """
     size, _, cin, cout = kernel.shape
     oh, ow = (x.shape[-3] - size) // 2 + 1, (x.shape[-2] - size) // 2 + 1
     patches = jnp.concatenate(
         [x[..., i:i + 2 * oh - 1:2, j:j + 2 * ow - 1:2, :]
          for i in range(size) for j in range(size)], axis=-1)
-    return patches @ kernel.reshape(size * size * cin, cout)
+    return matmul(patches, kernel.reshape(size * size * cin, cout), dtype)
 
 
 class _Stride2Layer(nn.Module):
-    """A ``[K, K, Cin, Cout]`` Glorot kernel and a zero bias around the stride-2 op ``apply_op``."""
+    """A ``[K, K, Cin, Cout]`` Glorot kernel and a zero bias around the stride-2 op ``apply_op``
+    (its matmuls in ``dtype``)."""
 
     features: int
     kernel_size: int
+    dtype: Any = jnp.float32
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         shape = (self.kernel_size, self.kernel_size, x.shape[-1], self.features)
         kernel = self.param("kernel", _GLOROT, shape)
         bias = self.param("bias", nn.initializers.zeros, (self.features,))
-        return self.apply_op(x, kernel) + bias
+        return self.apply_op(x, kernel, self.dtype) + bias
 
 
 class Conv2(_Stride2Layer):
@@ -93,7 +102,7 @@ class Conv2(_Stride2Layer):
     apply_op = staticmethod(conv_stride2)
 
 
-def conv_transpose_stride2(x: jax.Array, kernel: jax.Array) -> jax.Array:
+def conv_transpose_stride2(x: jax.Array, kernel: jax.Array, dtype=jnp.float32) -> jax.Array:
     """Stride-2 VALID transposed convolution ``out[2i + k] += x[i] @ kernel[k]`` via matmuls.
 
     ``x`` [..., h, w, Cin], ``kernel`` [K, K, Cin, Cout] -> [..., 2(h-1)+K, 2(w-1)+K, Cout].
@@ -105,6 +114,8 @@ def conv_transpose_stride2(x: jax.Array, kernel: jax.Array) -> jax.Array:
     patches: each pixel times all taps is the output (overlap-add). Overlap-add on larger inputs
     moves less memory forward, but XLA's CPU backward of its shifted adds ran 4-10x slower than
     im2col's (the 30x30 -> 64x64 layer: 6.7 s against 0.67 s forward + backward at batch 800).
+    ``dtype``: the matmuls' compute dtype (:func:`vsgjax.precision.matmul`); the shifted sums
+    of the overlap-add are float32.
     """
     size, _, cin, cout = kernel.shape
     batch, h, w = x.shape[:-3], x.shape[-3], x.shape[-2]
@@ -114,14 +125,14 @@ def conv_transpose_stride2(x: jax.Array, kernel: jax.Array) -> jax.Array:
     taps = taps.reshape(m, 2, m, 2, cin, cout)
     oh, ow = h + m - 1, w + m - 1
     if h == w == 1:
-        phases = _overlap_add(x, taps, oh, ow)
+        phases = _overlap_add(x, taps, oh, ow, dtype)
     else:
-        phases = _phase_im2col(x, taps, oh, ow)
+        phases = _phase_im2col(x, taps, oh, ow, dtype)
     y = jnp.moveaxis(phases, -3, -4).reshape(batch + (2 * oh, 2 * ow, cout))
     return y[..., : 2 * (h - 1) + size, : 2 * (w - 1) + size, :]
 
 
-def _phase_im2col(x, taps, oh, ow):
+def _phase_im2col(x, taps, oh, ow, dtype):
     """[..., h, w, Cin] -> phases [..., oh, ow, 2, 2, Cout] as one matmul over patches."""
     m, _, _, _, cin, cout = taps.shape
     pad = [(0, 0)] * (x.ndim - 3) + [(m - 1, m - 1), (m - 1, m - 1), (0, 0)]
@@ -130,13 +141,13 @@ def _phase_im2col(x, taps, oh, ow):
         [x[..., i:i + oh, j:j + ow, :] for i in range(m) for j in range(m)], axis=-1)
     # patch offset (i, j) reads x[p - (m-1-i)]: tap index m-1-i
     weights = taps[::-1, :, ::-1].transpose(0, 2, 4, 1, 3, 5).reshape(m * m * cin, 4 * cout)
-    return (patches @ weights).reshape(x.shape[:-3] + (oh, ow, 2, 2, cout))
+    return matmul(patches, weights, dtype).reshape(x.shape[:-3] + (oh, ow, 2, 2, cout))
 
 
-def _overlap_add(x, taps, oh, ow):
+def _overlap_add(x, taps, oh, ow, dtype):
     """[..., h, w, Cin] -> phases [..., oh, ow, 2, 2, Cout]: all taps per pixel, shifted sums."""
     m, _, _, _, cin, cout = taps.shape
-    z = x @ taps.transpose(4, 0, 2, 1, 3, 5).reshape(cin, m * m * 4 * cout)
+    z = matmul(x, taps.transpose(4, 0, 2, 1, 3, 5).reshape(cin, m * m * 4 * cout), dtype)
     z = z.reshape(x.shape[:-1] + (m, m, 2, 2, cout))
     lead = [(0, 0)] * (x.ndim - 3)
     return sum(jnp.pad(z[..., i, j, :, :, :], lead + [(i, m - 1 - i), (j, m - 1 - j)]
@@ -149,20 +160,41 @@ class ConvTranspose2(_Stride2Layer):
     apply_op = staticmethod(conv_transpose_stride2)
 
 
+class Dense(nn.Module):
+    """``nn.Dense`` with a Glorot kernel whose matmul is :func:`vsgjax.precision.matmul`.
+
+    Own rather than ``nn.Dense(dtype=...)``, which would cast the bias and return the compute
+    dtype (the policy wants a float32 product and bias). The same class name, parameter names,
+    shapes, initialisers and creation order as ``nn.Dense`` keep the parameter trees (the
+    ``Dense_<i>`` paths) and their initial values unchanged.
+    """
+
+    features: int
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = self.param("kernel", _GLOROT, (x.shape[-1], self.features), jnp.float32)
+        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,), jnp.float32)
+        y = matmul(x, kernel, self.dtype)
+        return y + bias.reshape((1,) * (y.ndim - 1) + (-1,))  # as nn.Dense: the same program
+
+
 class ConvDecoder(nn.Module):
     """[..., F] features -> [..., 64, 64, channels] mean image in [-0.5, 0.5] units."""
 
     depth: int
     channels: int
+    dtype: Any = jnp.float32
 
     @nn.compact
     def __call__(self, feat: jax.Array) -> jax.Array:
-        x = nn.Dense(32 * self.depth, kernel_init=_GLOROT)(feat)
+        x = Dense(32 * self.depth, self.dtype)(feat)
         x = x.reshape(x.shape[:-1] + (1, 1, x.shape[-1]))
         last = len(DECODER_KERNELS) - 1
         for i, kernel in enumerate(DECODER_KERNELS):
             features = self.channels if i == last else self.depth * 2 ** (last - 1 - i)
-            x = ConvTranspose2(features, kernel)(x)
+            x = ConvTranspose2(features, kernel, self.dtype)(x)
             if i != last:
                 x = nn.elu(x)
         return x
@@ -177,15 +209,16 @@ class MLP(nn.Module):
     layers: int
     units: int
     out_shape: Sequence[int] = ()
+    dtype: Any = jnp.float32
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for _ in range(self.layers):
-            x = nn.elu(nn.Dense(self.units, kernel_init=_GLOROT)(x))
+            x = nn.elu(Dense(self.units, self.dtype)(x))
         size = 1
         for dim in self.out_shape:
             size *= dim
-        x = nn.Dense(size, kernel_init=_GLOROT)(x)
+        x = Dense(size, self.dtype)(x)
         return x.reshape(x.shape[:-1] + tuple(self.out_shape))
 
 

@@ -15,7 +15,8 @@ over the whole batch, not each step. ``L_gate`` is the gate sparsity loss of
 :mod:`vsgjax.gates`. Log-likelihoods are summed over pixels and averaged over batch and time.
 
 All per-step terms are computed per sequence (:meth:`WorldModel.sequence_terms`, unbatched) and
-vmapped over the batch with one PRNG key per sequence.
+vmapped over the batch with one PRNG key per sequence. The networks' matmuls run in
+``model.precision`` (:mod:`vsgjax.precision`); the loss and all its terms are float32.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from vsgjax.networks import (
     image_to_float,
     normal_log_prob,
 )
+from vsgjax.precision import compute_dtype
 
 sg = jax.lax.stop_gradient
 
@@ -85,20 +87,25 @@ class WorldModel:
         return make_dynamics(self.config.model)
 
     @property
+    def dtype(self) -> jnp.dtype:
+        """Compute dtype of every matmul and convolution (``model.precision``)."""
+        return compute_dtype(self.config.model.precision)
+
+    @property
     def encoder(self) -> ConvEncoder:
-        return ConvEncoder(self.config.wm.cnn_depth)
+        return ConvEncoder(self.config.wm.cnn_depth, self.dtype)
 
     @property
     def decoder(self) -> ConvDecoder:
-        return ConvDecoder(self.config.wm.cnn_depth, self.obs_shape[-1])
+        return ConvDecoder(self.config.wm.cnn_depth, self.obs_shape[-1], self.dtype)
 
     @property
     def reward_head(self) -> MLP:
-        return MLP(self.config.wm.reward_layers, self.config.wm.mlp_units)
+        return MLP(self.config.wm.reward_layers, self.config.wm.mlp_units, dtype=self.dtype)
 
     @property
     def discount_head(self) -> MLP:
-        return MLP(self.config.wm.discount_layers, self.config.wm.mlp_units)
+        return MLP(self.config.wm.discount_layers, self.config.wm.mlp_units, dtype=self.dtype)
 
     # --- parameters --------------------------------------------------------------------------
 

@@ -48,13 +48,15 @@ RESULTS = Path(__file__).parent / "results" / "seeds.md"
 # --- in a child process --------------------------------------------------------------------------
 
 
-def loop_child(seeds: list[int], window: int, repeats: int, barrier: str | None) -> dict:
+def loop_child(seeds: list[int], window: int, repeats: int, barrier: str | None = None,
+               size: str = "small", overrides: tuple[str, ...] = ()) -> dict:
     """Warm up a trainer of ``seeds``, wait at the barrier, time ``repeats`` loop windows."""
     from vsgjax.config import make_config
     from vsgjax.train import Trainer, enable_compilation_cache
 
     enable_compilation_cache()
-    configs = [make_config(TASK, "vsg", "small", [f"train.seed={s}", *OVERRIDES]) for s in seeds]
+    configs = [make_config(TASK, "vsg", size, [f"train.seed={s}", *OVERRIDES, *overrides])
+               for s in seeds]
     with tempfile.TemporaryDirectory() as root:
         started = time.perf_counter()
         trainer = Trainer(configs, [Path(root) / f"s{s}" for s in seeds], progress=False,

@@ -14,6 +14,8 @@ Subclasses implement ``init``, ``initial``, ``img_step``, ``feat``/``feat_dim`` 
 posterior step on a pre-projected embedding (``project_embed`` + ``_obs_step_projected``):
 the posterior's first dense layer over ``[·, e]`` is split into a part on ``e`` and a part on
 the rest, so :meth:`observe` projects all ``T`` embeddings in one matmul outside the scan.
+Every dense layer's matmul runs in :attr:`Dynamics.dtype` (``cfg.precision``,
+:mod:`vsgjax.precision`); states, distributions and gates are float32.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import jax.numpy as jnp
 from vsgjax.cells import GATE_MODES, dense, dense_init
 from vsgjax.config import ModelConfig
 from vsgjax.distributions import Latent, LatentSpace
+from vsgjax.precision import compute_dtype
 
 
 class RSSMState(NamedTuple):
@@ -91,6 +94,12 @@ class Dynamics(abc.ABC):
                 f"unknown model.gate_mode {self.cfg.gate_mode!r}; valid: {', '.join(GATE_MODES)}"
             )
         _ = self.latent  # LatentSpace raises on a bad stoch / classes
+        _ = self.dtype  # raises on an unknown precision
+
+    @property
+    def dtype(self) -> jnp.dtype:
+        """Compute dtype of the matmuls (``cfg.precision``)."""
+        return compute_dtype(self.cfg.precision)
 
     @property
     def latent(self) -> LatentSpace:
@@ -124,7 +133,7 @@ class Dynamics(abc.ABC):
 
     def project_embed(self, params: dict, embed: jax.Array) -> jax.Array:
         """Embedding part of the posterior's first layer; ``[..., E] -> [..., hidden]``."""
-        return dense(params["obs_embed"], embed)
+        return dense(params["obs_embed"], embed, self.dtype)
 
     def _stats_init(self, keys: jax.Array, prior_in: int, context: str, context_dim: int,
                     embed_dim: int) -> dict:
@@ -142,14 +151,14 @@ class Dynamics(abc.ABC):
 
     def _prior_dist(self, params: dict, prior_in: jax.Array):
         """``stats(ELU(Dense(prior_in)))``: the prior's distribution."""
-        hidden = jax.nn.elu(dense(params["img_out"], prior_in))
-        return self.latent.from_raw(dense(params["img_stats"], hidden))
+        hidden = jax.nn.elu(dense(params["img_out"], prior_in, self.dtype))
+        return self.latent.from_raw(dense(params["img_stats"], hidden, self.dtype))
 
     def _posterior_dist(self, params: dict, context: str, value: jax.Array,
                         embed_proj: jax.Array):
         """``stats(ELU(Dense([context, embed])))``: the posterior's distribution."""
-        hidden = jax.nn.elu(dense(params[f"obs_{context}"], value) + embed_proj)
-        return self.latent.from_raw(dense(params["obs_stats"], hidden))
+        hidden = jax.nn.elu(dense(params[f"obs_{context}"], value, self.dtype) + embed_proj)
+        return self.latent.from_raw(dense(params["obs_stats"], hidden, self.dtype))
 
     @abc.abstractmethod
     def _obs_step_projected(

@@ -63,17 +63,17 @@ class RSSM(Dynamics):
     def img_step(self, params, prev, action, key):
         cell_key, stoch_key = jax.random.split(key)
         inputs = jnp.concatenate([self.latent.flatten(prev.stoch), action], -1)
-        x = jax.nn.elu(dense(params["img_in"], inputs))
+        x = jax.nn.elu(dense(params["img_in"], inputs, self.dtype))
         if self.gated:
             cfg = self.cfg
             out = sparse_gru_cell(
-                params["cell"], prev.deter, x, cell_key, cfg.gate_bias, cfg.gate_mode
+                params["cell"], prev.deter, x, cell_key, cfg.gate_bias, cfg.gate_mode, self.dtype
             )
             dist = self._prior_dist(params, out.state)
             return GatedRSSMState(
                 out.state, dist.sample(stoch_key), dist, out.gate, out.gate_logit
             )
-        deter = gru_cell(params["cell"], prev.deter, x, self.cfg.gate_bias)
+        deter = gru_cell(params["cell"], prev.deter, x, self.cfg.gate_bias, self.dtype)
         dist = self._prior_dist(params, deter)
         return RSSMState(deter, dist.sample(stoch_key), dist)
 

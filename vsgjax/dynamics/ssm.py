@@ -39,7 +39,7 @@ class SSM(Dynamics):
     def _prior(self, params, prev, action, key) -> tuple[SSMState, jax.Array]:
         """Prior state and the transition's hidden ``x`` (which the posterior also reads)."""
         inputs = jnp.concatenate([self.latent.flatten(prev.stoch), action], -1)
-        x = jax.nn.elu(dense(params["img_in"], inputs))
+        x = jax.nn.elu(dense(params["img_in"], inputs, self.dtype))
         dist = self._prior_dist(params, x)
         return SSMState(dist.sample(key), dist), x
 

@@ -57,9 +57,11 @@ class SVSG(Dynamics):
     def _prior(self, params, prev, action, key) -> tuple[SVSGState, jax.Array]:
         """Prior state and the cell's candidate ``ĉ`` (which the posterior also reads)."""
         cell_key, stoch_key = jax.random.split(key)
-        x = jax.nn.elu(dense(params["img_in"], jnp.concatenate([prev.stoch, action], -1)))
+        inputs = jnp.concatenate([prev.stoch, action], -1)
+        x = jax.nn.elu(dense(params["img_in"], inputs, self.dtype))
+        cfg = self.cfg
         out = sparse_gru_cell(
-            params["cell"], prev.stoch, x, cell_key, self.cfg.gate_bias, self.cfg.gate_mode
+            params["cell"], prev.stoch, x, cell_key, cfg.gate_bias, cfg.gate_mode, self.dtype
         )
         dist = self._prior_dist(params, out.candidate)
         stoch = gated_update(out.gate, dist.sample(stoch_key), prev.stoch)

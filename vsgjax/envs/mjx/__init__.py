@@ -1,0 +1,59 @@
+"""DeepMind Control Suite tasks in pure JAX on MuJoCo MJX (``mjx_<domain>_<task>``).
+
+The physics is dm_control's own XML, compiled by MuJoCo and copied to MJX; reward functions,
+observations and initial-state randomisation are dm_control's, written in JAX. Everything is a
+pure function of a pytree state, so a batch of environments is ``jax.vmap`` and a rollout is
+``jax.lax.scan``::
+
+    task = make_mjx_task("mjx_cartpole_swingup", action_repeat=2, time_limit=1000)
+    state = jax.jit(task.reset)(key)
+    state = jax.jit(task.step)(state, action)  # action in [-1, 1]^task.action_dim
+
+Changes to the suite's models (all in ``core.load_model`` or a domain's ``edit``):
+
+* ``cartpole.xml`` and ``pendulum.xml`` enable MuJoCo's ``energy`` flag, which MJX rejects;
+  it is cleared. Energy is a diagnostic: no force, observation or reward reads it.
+* Per-episode model edits of dm_control become state (reacher's target position lives in
+  ``state.info``) or are made once when they are the same every episode (reacher's target
+  size, finger spin's hinge damping).
+
+See ``docs/mjx.md`` for the tasks, the measured agreement with dm_control and the API.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+
+with contextlib.redirect_stdout(io.StringIO()):
+    # mujoco.mjx prints "Failed to import warp" to stdout where the optional MuJoCo Warp
+    # backend is not installed (it is not used here); keep the training log's stdout clean.
+    from mujoco import mjx  # noqa: F401
+
+from vsgjax.envs import TaskError
+from vsgjax.envs.mjx import cartpole, cheetah, finger, hopper, pendulum, reacher, walker
+from vsgjax.envs.mjx.core import MjxState, MjxTask, TaskSpec, physics
+
+__all__ = ["MjxState", "MjxTask", "TaskSpec", "make_mjx_task", "mjx_task_names",
+           "parse_mjx_task", "physics"]
+
+_DOMAINS = (cartpole, pendulum, reacher, cheetah, walker, finger, hopper)
+SPECS: dict[str, TaskSpec] = {spec.name: spec for module in _DOMAINS
+                              for spec in module.TASKS.values()}
+
+
+def mjx_task_names() -> list[str]:
+    """Every ``mjx_<domain>_<task>`` name, in registry order."""
+    return list(SPECS)
+
+
+def parse_mjx_task(name: str) -> TaskSpec:
+    """The spec named ``name``; a TaskError listing every valid mjx task name otherwise."""
+    if name not in SPECS:
+        raise TaskError(f"unknown MJX task {name!r}; valid: {', '.join(SPECS)}")
+    return SPECS[name]
+
+
+def make_mjx_task(name: str, action_repeat: int = 2, time_limit: int = 1000) -> MjxTask:
+    """The task ``name`` with the dmc preset's defaults (``time_limit`` counts env steps)."""
+    return MjxTask(parse_mjx_task(name), action_repeat, time_limit)
