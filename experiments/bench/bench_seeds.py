@@ -13,7 +13,8 @@
    Rates are summed over seeds (S processes: the sum of their median rates). Memory: the peak
    resident set of the process (S processes: the sum of their peaks, an upper bound).
    The share of the loop spent in collection (policy + env steps of all seeds) shows whether
-   collection is on the critical path.
+   collection is on the critical path. A third configuration runs the S seeds in one process
+   sharded over S forced host devices (one seed per device).
 2. One update, timed alone: the plain ``Agent.train_step``, the trainer's vmapped update of one
    seed, of 2 seeds, and both sharded over 2 forced host devices
    (``XLA_FLAGS=--xla_force_host_platform_device_count=2``; on a CPU both "devices" share the
@@ -161,11 +162,18 @@ def result(process: subprocess.Popen) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
-def run_together(groups: list[list[int]], window: int, repeats: int) -> list[dict]:
-    """One child per seed group, timed windows after all of them warmed up."""
+def run_together(groups: list[list[int]], window: int, repeats: int,
+                 devices: int = 0) -> list[dict]:
+    """One child per seed group, timed windows after all of them warmed up; with ``devices``,
+    each child sees that many forced host devices and shards its seeds over them."""
+    env, overrides = None, []
+    if devices:
+        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+        overrides = [f"train.devices={devices}"]
     with tempfile.TemporaryDirectory() as barrier:
         children = [spawn(["--child", json.dumps({"seeds": g, "window": window,
-                                                  "repeats": repeats, "barrier": barrier})])
+                                                  "repeats": repeats, "barrier": barrier,
+                                                  "overrides": overrides})], env)
                     for g in groups]
         while len(list(Path(barrier).glob("ready-*"))) < len(groups):
             if any(child.poll() not in (None, 0) for child in children):
@@ -185,7 +193,7 @@ def summary(rows: list[dict]) -> dict:
             "warmup_s": max(r["warmup_s"] for r in rows)}
 
 
-def markdown(table: list[tuple[int, dict, dict | None]], updates: dict, window: int,
+def markdown(table: list[tuple[int, dict, dict | None, dict | None]], updates: dict, window: int,
              repeats: int) -> str:
     gib = 2**30
     lines = [
@@ -200,24 +208,30 @@ def markdown(table: list[tuple[int, dict, dict | None]], updates: dict, window: 
         "Collection % is the loop's time in the policy and env steps of all seeds.",
         "",
         "| S | one process: env steps/s | seed-updates/s | collection % | peak GiB "
-        "| S processes: env steps/s | seed-updates/s | peak GiB | speed ratio | memory ratio |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| S processes: env steps/s | seed-updates/s | peak GiB | speed ratio | memory ratio "
+        "| one process on S forced devices: seed-updates/s | its speed ratio |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for seeds, one, many in table:
+    for seeds, one, many, sharded in table:
         cells = [f"{one['env_steps_per_s']:.1f}", f"{one['updates_per_s']:.2f}",
                  f"{100 * one['collect_share']:.1f}", f"{one['peak_rss'] / gib:.1f}"]
         if many is None:
-            cells += ["(= one process)", "", "", "", ""]
+            cells += ["(= one process)", "", "", "", "", "", ""]
         else:
             cells += [f"{many['env_steps_per_s']:.1f}", f"{many['updates_per_s']:.2f}",
                       f"{many['peak_rss'] / gib:.1f}",
                       f"{one['updates_per_s'] / many['updates_per_s']:.2f}",
-                      f"{one['peak_rss'] / many['peak_rss']:.2f}"]
+                      f"{one['peak_rss'] / many['peak_rss']:.2f}",
+                      f"{sharded['updates_per_s']:.2f}",
+                      f"{sharded['updates_per_s'] / many['updates_per_s']:.2f}"]
         lines.append(f"| {seeds} | " + " | ".join(cells) + " |")
     lines += [
         "",
         "Speed ratio: seed-updates per second of one process over S processes (> 1: one "
-        "process is faster); memory ratio: its peak over theirs (< 1: it needs less).",
+        "process is faster); memory ratio: its peak over theirs (< 1: it needs less). The last "
+        "columns: the same S seeds in one process with "
+        "`XLA_FLAGS=--xla_force_host_platform_device_count=S train.devices=S` (each seed on its "
+        "own host device, so XLA runs the seeds' programs side by side), against S processes.",
         "",
         "### One update, timed alone (small, batch 8 x 32, 2 forced host devices)",
         "",
@@ -241,10 +255,13 @@ def main(seeds: tuple[int, ...] = SEEDS, window: int = WINDOW, repeats: int = RE
     table = []
     for count in seeds:
         one = summary(run_together([list(range(count))], window, repeats))
-        many = summary(run_together([[s] for s in range(count)], window, repeats)) \
-            if count > 1 else None
-        table.append((count, one, many))
-        print(f"S={count}: one process {one}, S processes {many}", flush=True)
+        many = sharded = None
+        if count > 1:
+            many = summary(run_together([[s] for s in range(count)], window, repeats))
+            sharded = summary(run_together([list(range(count))], window, repeats, count))
+        table.append((count, one, many, sharded))
+        print(f"S={count}: one process {one}, S processes {many}, sharded {sharded}",
+              flush=True)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
     updates = result(spawn(["--updates", str(UPDATE_REPEATS)], env))
     text = markdown(table, updates, window, repeats)
