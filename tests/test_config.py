@@ -1,6 +1,7 @@
 """Config presets (spec section 5) and error messages for bad names, keys and types."""
 
 import dataclasses
+import json
 from pathlib import Path
 
 import pytest
@@ -10,6 +11,7 @@ from vsgjax.config import (
     SIZES,
     ConfigError,
     apply_overrides,
+    config_changes,
     from_dict,
     make_config,
     to_dict,
@@ -214,3 +216,12 @@ def test_readme_preset_table_lists_every_config_key():
     keys = {f"{section}.{name}" for section, values in data.items() if isinstance(values, dict)
             for name in values}
     assert keys - IDENTITY_KEYS == set(readme_presets())
+
+
+def test_a_saved_config_that_predates_a_key_counts_it_as_its_default():
+    current = to_dict(make_config("bbs_basic", "vsg", "small"))
+    saved = json.loads(json.dumps(current))
+    del saved["wm"]["encoder"], saved["model"]["precision"]
+    assert config_changes(saved, current) == []
+    changed = to_dict(make_config("bbs_basic", "vsg", "small", ["model.precision=bfloat16"]))
+    assert config_changes(saved, changed) == ["model.precision: 'float32' -> 'bfloat16'"]

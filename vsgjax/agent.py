@@ -1,6 +1,7 @@
 """The agent: one jitted update of world model, actor and critic, and jitted acting.
 
     agent = Agent(config, obs_shape=(64, 64, 3), action_dim=2, discrete=False)
+    # or obs_shape={"vector": (24,)} (an ObsSpec or {key: shape}; see vsgjax.observations)
     state = agent.init(key)                                   # AgentState pytree
     state, metrics = agent.train_step(state, batch, key)      # batch: the [B, T] sequence dict
     carry = agent.initial_carry(num_envs)
@@ -14,6 +15,7 @@ static argument: equal agents share compiled code. Behaviour learning is in
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -23,6 +25,7 @@ import optax
 
 from vsgjax import behaviour as bhv
 from vsgjax.config import Config
+from vsgjax.observations import ObsSpec, obs_spec
 from vsgjax.optim import agent_optimizers
 from vsgjax.world_model import WorldModel
 
@@ -46,15 +49,19 @@ Carry = tuple[Any, jax.Array]  # (posterior states [N, ...], previous actions [N
 
 @dataclass(frozen=True)
 class Agent:
-    """World model + imagination actor-critic for one observation shape and action space."""
+    """World model + imagination actor-critic for one observation spec and action space.
+
+    ``obs_shape``: an image shape ``(64, 64, C)``, a ``{key: shape}`` dict or an
+    :class:`~vsgjax.observations.ObsSpec`; stored as the ObsSpec.
+    """
 
     config: Config
-    obs_shape: tuple[int, int, int]
+    obs_shape: ObsSpec | Mapping[str, Sequence[int]] | Sequence[int]
     action_dim: int
     discrete: bool
 
     def __post_init__(self):
-        object.__setattr__(self, "obs_shape", tuple(int(d) for d in self.obs_shape))
+        object.__setattr__(self, "obs_shape", obs_spec(self.obs_shape))
 
     @functools.cached_property
     def world_model(self) -> WorldModel:
@@ -156,7 +163,8 @@ class Agent:
                     mode: str = "train") -> tuple[Carry, jax.Array]:
         """One acting step for a batch of N environments.
 
-        ``obs``: ``image`` [N, H, W, C] uint8 and ``is_first`` [N] bool (other keys ignored).
+        ``obs``: the spec's keys (``image`` [N, H, W, C] uint8, vectors [N, D] float32) and
+        ``is_first`` [N] bool (other keys ignored).
         Where ``is_first``, the carried state and previous action are zeroed before the
         posterior step. ``mode="train"`` samples the actor, ``"eval"`` takes its mode (the
         latent state and VSG's gates are sampled in both, as in the released code). Actions are
@@ -167,7 +175,7 @@ class Agent:
             raise ValueError(f"unknown policy mode {mode!r}; valid: {', '.join(POLICY_MODES)}")
         dyn, states, prev_actions = self.world_model.dynamics, *carry
         state_key, action_key = jax.random.split(key)
-        embeds = self.world_model.encode(params["wm"], obs["image"])
+        embeds = self.world_model.encode(params["wm"], obs)
 
         def posterior(state, action, is_first, embed, step_key):
             state, action = dyn.reset(state, action, is_first)

@@ -3,7 +3,7 @@
 Everything is a pure function of explicit params, state and PRNG keys; the config is a static
 (hashable) argument. ``imagine`` accepts start states with any leading batch dimensions::
 
-    state = init(config, key, obs_shape=(64, 64, 3), action_dim=2)
+    state = init(config, key, obs_shape=(64, 64, 3), action_dim=2)   # or {"vector": (24,)}
     state, metrics, posts = train_step(config, state, batch, key)
     last = jax.tree.map(lambda x: x[:, -1], posts)           # [B] posterior states
     out = imagine(state.params, last, 15, config=config, key=key, action_dim=2)
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import jax
@@ -29,9 +29,10 @@ import optax
 
 from vsgjax.behaviour import Behaviour
 from vsgjax.config import Config
-from vsgjax.networks import DECODER_KERNELS, float_to_image
+from vsgjax.networks import float_to_image
+from vsgjax.observations import ObsSpec
 from vsgjax.optim import world_model_optimizer
-from vsgjax.world_model import WorldModel
+from vsgjax.world_model import WorldModel, obs_spec_of
 
 
 class TrainState(NamedTuple):
@@ -43,16 +44,19 @@ class TrainState(NamedTuple):
 
 
 def world_model_for(config: Config, params: dict, action_dim: int = 0) -> WorldModel:
-    """The :class:`WorldModel` matching ``params`` (image channels read from the decoder)."""
-    last = f"ConvTranspose2_{len(DECODER_KERNELS) - 1}"
-    channels = params["decoder"][last]["bias"].shape[-1]
-    return WorldModel(config, (64, 64, channels), action_dim)
+    """The :class:`WorldModel` matching ``params`` (its observation spec read from the
+    decoders: :func:`vsgjax.world_model.obs_spec_of`)."""
+    return WorldModel(config, obs_spec_of(params), action_dim)
 
 
-def init(config: Config, key: jax.Array, obs_shape: tuple[int, int, int] = (64, 64, 3),
+def init(config: Config, key: jax.Array,
+         obs_shape: ObsSpec | Mapping[str, Sequence[int]] | Sequence[int] = (64, 64, 3),
          action_dim: int = 2) -> TrainState:
-    """Fresh world-model parameters and optimizer state (``action_dim`` 2 = BringBackShapes)."""
-    return _init(WorldModel(config, tuple(obs_shape), action_dim), key)
+    """Fresh world-model parameters and optimizer state (``action_dim`` 2 = BringBackShapes).
+
+    ``obs_shape``: an image shape, a ``{key: shape}`` dict or an ObsSpec (see WorldModel).
+    """
+    return _init(WorldModel(config, obs_shape, action_dim), key)
 
 
 @functools.partial(jax.jit, static_argnames="model")
@@ -66,9 +70,12 @@ def _init(model: WorldModel, key: jax.Array) -> TrainState:
 def train_step(config: Config, state: TrainState, batch: dict, key: jax.Array):
     """One world-model update on a [B, T] batch -> ``(state, metrics, posts)``.
 
-    ``metrics`` adds the gradient's global norm (before clipping) to the loss metrics.
+    The batch holds the observation keys the params were built for (``image`` [B, T, 64, 64,
+    C] uint8, vectors [B, T, D] float32) besides ``action``, ``reward``, ``is_first`` and
+    ``is_terminal``. ``metrics`` adds the gradient's global norm (before clipping) to the loss
+    metrics.
     """
-    model = WorldModel(config, batch["image"].shape[2:], batch["action"].shape[-1])
+    model = world_model_for(config, state.params, batch["action"].shape[-1])
     grad_fn = jax.value_and_grad(model.loss, has_aux=True)
     (_, (metrics, posts)), grads = grad_fn(state.params, batch, key)
     updates, opt_state = world_model_optimizer(config).update(grads, state.opt_state,
@@ -82,7 +89,7 @@ def train_step(config: Config, state: TrainState, batch: dict, key: jax.Array):
 def observe(config: Config, params: dict, batch: dict, key: jax.Array):
     """Posterior and prior states [B, T, ...] of a batch of sequences (no loss, no gradient)."""
     model = world_model_for(config, params, batch["action"].shape[-1])
-    keys = jax.random.split(key, batch["image"].shape[0])
+    keys = jax.random.split(key, batch["action"].shape[0])
     return jax.vmap(model.observe, in_axes=(None, 0, 0))(params, batch, keys)
 
 
@@ -150,7 +157,9 @@ def imagine(params: dict | TrainedParams, state: Any, H: int = 15, *,
     dict needs one of ``actions``, ``policy`` or ``action_dim``.
     Returns a dict of arrays with leading dims ``[..., H]``: the imagined ``states`` (the
     state after each action; the start state is not repeated), ``actions``, ``feats``,
-    ``images`` (uint8), ``image_means`` (float, [-0.5, 0.5]), ``rewards`` and ``discounts``.
+    ``rewards``, ``discounts``, and the decoded observations: ``images`` (uint8) and
+    ``image_means`` (float, [-0.5, 0.5]) when the model has an image, ``vectors`` (``{key:
+    mean [..., H, D]}``) when it has vector keys.
     Pure and jit-friendly: ``jax.jit(lambda p, s: imagine(p, s, H=15))(run.params, state)``.
     """
     actor = actor_params = None
@@ -211,10 +220,14 @@ def _imagine_flat(model: WorldModel, params: dict, start: Any, H: int, key: jax.
         states = jax.tree.map(lambda x: x[:, 1:], states)
         actions = actions[:, :-1]
     feats = jax.vmap(jax.vmap(dyn.feat))(states)
-    means = model.decode_frames(params, feats)
-    return {
+    out = {
         "states": states, "actions": actions, "feats": feats,
-        "images": float_to_image(means), "image_means": means,
         "rewards": model.reward_mean(params, feats),
         "discounts": model.discount(params, feats),
     }
+    if model.has_image:
+        means = model.decode_frames(params, feats)
+        out.update(images=float_to_image(means), image_means=means)
+    if model.vector_keys:
+        out["vectors"] = model.decode_vectors(params, feats)
+    return out

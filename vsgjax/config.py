@@ -32,10 +32,12 @@ ACTOR_GRADS = ("auto", "dynamics", "reinforce", "both")
 EPS_PLACEMENTS = ("release", "optax")  # optim.eps_placement: see vsgjax/optim.py
 WEIGHT_DECAYS = ("release", "adamw")  # optim.weight_decay: see vsgjax/optim.py
 PRECISIONS = ("float32", "bfloat16")  # model.precision: the dtype of matmuls and convolutions
+ENCODERS = ("auto", "cnn", "mlp")  # wm.encoder: see vsgjax/world_model.py (check_encoders)
+LOOPS = ("auto", "host", "device")  # train.loop: see vsgjax/device_loop.py
 # String keys whose values are names from a fixed list (checked when a config is built).
 CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS,
            "optim.eps_placement": EPS_PLACEMENTS, "optim.weight_decay": WEIGHT_DECAYS,
-           "model.precision": PRECISIONS}
+           "model.precision": PRECISIONS, "train.loop": LOOPS, "wm.encoder": ENCODERS}
 
 
 class ConfigError(ValueError):
@@ -64,6 +66,9 @@ class ModelConfig:
 class WorldModelConfig:
     """Encoder, decoder, heads, world-model loss and its optimizer (spec section 3)."""
 
+    # "auto": the CNN for the image key, the MLP for vector keys; "cnn" / "mlp": one of the two
+    # only (an observation spec with keys it cannot encode is an error)
+    encoder: str = "auto"
     cnn_depth: int = 48
     mlp_layers: int = 4
     mlp_units: int = 400
@@ -148,6 +153,7 @@ class TrainConfig:
     ckpt_every: int = 1_000  # updates
     video_every: int = 100_000  # env steps; open-loop prediction and eval videos
     devices: int = 0  # devices the batch is sharded over (data parallel); 0: every visible one
+    loop: str = "auto"  # "device": the fully jitted loop (mjx_ tasks); "auto": device for mjx_
 
 
 @dataclass(frozen=True)
@@ -269,13 +275,19 @@ _SIZE_MODEL = {
 }
 
 
+# Task families whose presets are another domain's: the MJX tasks are DeepMind Control tasks.
+PRESET_DOMAIN = {"mjx": "dmc"}
+
+
 def domain_of(task: str) -> str:
-    """The domain a task name belongs to: its prefix before the first underscore."""
+    """The preset domain of a task name: its prefix before the first underscore (``mjx_``
+    tasks take the ``dmc`` presets)."""
     prefix = task.split("_", 1)[0]
+    prefix = PRESET_DOMAIN.get(prefix, prefix)
     if prefix not in DOMAINS or "_" not in task:
         raise ConfigError(
             f"unknown task {task!r}: task names look like "
-            "bbs_<variant>, dmc_<domain>_<task> or atari_<game>"
+            "bbs_<variant>, dmc_<domain>_<task>, mjx_<domain>_<task> or atari_<game>"
         )
     return prefix
 
@@ -394,13 +406,14 @@ def config_changes(saved: dict, current: dict) -> list[str]:
     """``section.key: saved -> current`` for every key outside :data:`RESUMABLE_SECTIONS`
     where two :func:`to_dict` configs differ ([] when they agree): what makes a log directory
     hold another run than ``current``."""
-    changed = []
+    changed, defaults = [], to_dict(Config())
     for section in sorted(set(current) | set(saved)):
         if section in RESUMABLE_SECTIONS:
             continue
         new, old = current.get(section), saved.get(section)
         if isinstance(new, dict) or isinstance(old, dict):
-            new, old = new or {}, old or {}
+            # a key the saved config predates counts as its default (e.g. wm.encoder)
+            new, old = new or {}, {**defaults.get(section, {}), **(old or {})}
             changed += [f"{section}.{key}: {old.get(key)!r} -> {new.get(key)!r}"
                         for key in sorted(set(new) | set(old)) if old.get(key) != new.get(key)]
         elif new != old:

@@ -1,11 +1,12 @@
-"""Image encoder/decoder and MLP heads of the world model (flax.linen, DreamerV2 layout).
+"""Image and vector encoders/decoders and MLP heads of the world model (flax.linen, DreamerV2).
 
 All modules accept any number of leading batch dimensions. Kernels use Glorot-uniform
 initialisation (the TensorFlow default the released code relied on); activations are ELU.
 Every module's ``dtype`` is the compute dtype of its matmuls (:mod:`vsgjax.precision`):
 parameters are float32 and every output is float32.
 
-Shapes for 64x64 images and depth ``d``::
+Vector observations go through :class:`MLPEncoder` and :class:`MLPDecoder` (one output head
+per vector key). Shapes for 64x64 images and depth ``d``::
 
     encoder: 64 -> 31 -> 14 -> 6 -> 2  (kernel 4, stride 2, VALID; depths d, 2d, 4d, 8d)
              flattened embedding of size 2*2*8d = 32d
@@ -27,6 +28,7 @@ from vsgjax.precision import matmul
 _GLOROT = nn.initializers.xavier_uniform()
 ENCODER_KERNELS = (4, 4, 4, 4)
 DECODER_KERNELS = (5, 5, 6, 6)
+HEAD_PREFIX = "head_"  # MLPDecoder's output layer of the vector key k is named head_<k>
 
 
 def image_to_float(image: jax.Array) -> jax.Array:
@@ -213,13 +215,48 @@ class MLP(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        for _ in range(self.layers):
-            x = nn.elu(Dense(self.units, self.dtype)(x))
+        x = elu_layers(x, self.layers, self.units, self.dtype)
         size = 1
         for dim in self.out_shape:
             size *= dim
         x = Dense(size, self.dtype)(x)
         return x.reshape(x.shape[:-1] + tuple(self.out_shape))
+
+
+def elu_layers(x: jax.Array, layers: int, units: int, dtype) -> jax.Array:
+    """``layers`` ELU dense layers of ``units`` (``Dense_<i>``; call inside a compact module)."""
+    for _ in range(layers):
+        x = nn.elu(Dense(units, dtype)(x))
+    return x
+
+
+class MLPEncoder(nn.Module):
+    """[..., D] vector -> [..., units] embedding: ``layers`` ELU dense layers, no linear output
+    (DreamerV2's encoder for vector keys; ``layers=0`` passes the vector through)."""
+
+    layers: int
+    units: int
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        return elu_layers(x, self.layers, self.units, self.dtype)
+
+
+class MLPDecoder(nn.Module):
+    """[..., F] features -> ``{key: [..., size]}`` means: ``layers`` shared ELU dense layers,
+    then one linear head ``head_<key>`` per vector key (DreamerV2's decoder for vector keys)."""
+
+    layers: int
+    units: int
+    sizes: tuple[tuple[str, int], ...]
+    dtype: Any = jnp.float32
+
+    @nn.compact
+    def __call__(self, feat: jax.Array) -> dict[str, jax.Array]:
+        x = elu_layers(feat, self.layers, self.units, self.dtype)
+        return {key: Dense(size, self.dtype, name=f"{HEAD_PREFIX}{key}")(x)
+                for key, size in self.sizes}
 
 
 def normal_log_prob(mean: jax.Array, target: jax.Array, event_dims: int = 0) -> jax.Array:

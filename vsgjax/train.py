@@ -51,7 +51,7 @@ from vsgjax.config import (
     make_config,
     to_dict,
 )
-from vsgjax.envs import TaskError, parse_task
+from vsgjax.envs import DEVICE_FAMILIES, TaskError, parse_task
 from vsgjax.evaluate import (
     Evaluator,
     acting_policy,
@@ -241,10 +241,11 @@ def group_label(seeds: list[int]) -> str:
     return ",".join(map(str, seeds))
 
 
-class SeedRun:
-    """One seed's log directory and host state: replay, episode files, logs, scores, eval.
+class RunFiles:
+    """One seed's log directory: config, logs, scores, eval records, episode files, checkpoints.
 
-    Each seed of a multi-seed run writes exactly what a single-seed run of that seed writes.
+    Each seed of a multi-seed run, and a run of the device loop, writes exactly what a
+    single-seed host run writes.
     """
 
     def __init__(self, config: Config, logdir: Path):
@@ -252,8 +253,6 @@ class SeedRun:
         self.logdir.mkdir(parents=True, exist_ok=True)
         self.ckpt_dir = self.logdir / "checkpoints"
         self._check_config()
-        train = config.train
-        self.replay = Replay(train.replay_capacity, train.length, train.seed, train.oversample_ends)
         self.store = EpisodeStore(self.logdir / "episodes")
         self.scores: dict = {"xs": [], "ys": []}
         self.episodes = 0
@@ -272,23 +271,18 @@ class SeedRun:
                               + "; ".join(changed) + "); use another --logdir to start a new run")
 
     def load(self, restored: checkpoint.Checkpoint) -> None:
-        self.replay.rng = checkpoint.rng_from_state(restored.meta["replay_rng"])
         self.scores = restored.meta["scores"]
         self.episodes = restored.meta["counters"].get("episodes", 0)
         self.checkpoint_path = restored.path
 
-    def open(self, agent: Agent, eval_envs: EnvBatch, env_steps: int) -> None:
-        """Reload the replay from episodes/, write config and scores, open the logs."""
-        # Episodes on disk are data even without a checkpoint (a run killed before its first).
-        for episode in self.store.load(limit_steps=self.config.train.replay_capacity):
-            self.replay.add_episode(episode)
+    def open_logs(self, env_steps: int) -> None:
+        """Write config and scores, open the logs (dropping records after ``env_steps``)."""
         checkpoint.atomic_write(self.logdir / "config.json",
                                 json.dumps(to_dict(self.config), indent=2).encode())
         # Records an interrupted run wrote after the restored step are dropped.
         self.logger = Logger(self.logdir, resume_step=env_steps)
         truncate_metrics(self.logdir / "eval_episodes.jsonl", env_steps)
         self.write_scores()
-        self.evaluator = Evaluator(agent, eval_envs)
 
     def write_scores(self) -> None:
         record = {"task": self.config.env.task, "method": METHOD_NAMES[self.config.model.name],
@@ -297,14 +291,13 @@ class SeedRun:
 
     def on_episode(self, episode: dict, info: dict, env_steps: int) -> None:
         self.store.write(episode)
-        self.replay.add_episode(episode)
         self.episodes += 1
         self.window_episodes.append(info)
         self.logger.scalars(env_steps, info, prefix="episode")
 
     def log(self, env_steps: int, shared: dict) -> dict:
         """Write the train record of this log interval (means over its updates); returns it."""
-        record = {**shared, "episodes": self.episodes, "replay_steps": self.replay.num_steps}
+        record = {**shared, "episodes": self.episodes, "replay_steps": self.replay_steps}
         if self.window:
             record.update({k: float(np.mean([m[k] for m in self.window])) for k in self.window[0]})
         if self.window_episodes:
@@ -324,11 +317,10 @@ class SeedRun:
         self.write_scores()
         return summary
 
-    def save(self, env_steps: int, counters: Counters, state: AgentState, key) -> None:
+    def save(self, env_steps: int, counters: Counters, tree: dict, **meta) -> None:
         meta = {"counters": {**dataclasses.asdict(counters), "episodes": self.episodes},
-                "replay_rng": checkpoint.rng_state(self.replay.rng), "scores": self.scores}
-        self.checkpoint_path = checkpoint.save(self.ckpt_dir, env_steps,
-                                               checkpoint_tree(state, key), meta,
+                "scores": self.scores, **meta}
+        self.checkpoint_path = checkpoint.save(self.ckpt_dir, env_steps, tree, meta,
                                                keep=KEEP_CHECKPOINTS)
 
     def last_good_checkpoint(self) -> str:
@@ -336,8 +328,44 @@ class SeedRun:
         return f"the last good checkpoint is {last}" if last else "no checkpoint was saved yet"
 
     def close(self) -> None:
-        self.evaluator.close()
         self.logger.close()
+
+
+class SeedRun(RunFiles):
+    """One seed of the host loop: its log directory, replay and evaluation envs."""
+
+    def __init__(self, config: Config, logdir: Path):
+        super().__init__(config, logdir)
+        train = config.train
+        self.replay = Replay(train.replay_capacity, train.length, train.seed, train.oversample_ends)
+
+    @property
+    def replay_steps(self) -> int:
+        return self.replay.num_steps
+
+    def load(self, restored: checkpoint.Checkpoint) -> None:
+        super().load(restored)
+        self.replay.rng = checkpoint.rng_from_state(restored.meta["replay_rng"])
+
+    def open(self, agent: Agent, eval_envs: EnvBatch, env_steps: int) -> None:
+        """Reload the replay from episodes/, open the logs and the evaluator."""
+        # Episodes on disk are data even without a checkpoint (a run killed before its first).
+        for episode in self.store.load(limit_steps=self.config.train.replay_capacity):
+            self.replay.add_episode(episode)
+        self.open_logs(env_steps)
+        self.evaluator = Evaluator(agent, eval_envs)
+
+    def on_episode(self, episode: dict, info: dict, env_steps: int) -> None:
+        super().on_episode(episode, info, env_steps)
+        self.replay.add_episode(episode)
+
+    def save(self, env_steps: int, counters: Counters, state: AgentState, key) -> None:
+        super().save(env_steps, counters, checkpoint_tree(state, key),
+                     replay_rng=checkpoint.rng_state(self.replay.rng))
+
+    def close(self) -> None:
+        self.evaluator.close()
+        super().close()
 
 
 def restore_seeds(runs: list[SeedRun], agent: Agent) -> list[checkpoint.Checkpoint] | None:
@@ -370,7 +398,33 @@ def restore_seeds(runs: list[SeedRun], agent: Agent) -> list[checkpoint.Checkpoi
     return restored
 
 
-class Trainer:
+class LoopDriver:
+    """:meth:`run`: a trainer's ``iteration()`` to ``train.steps``, the final evaluation, the
+    checkpoint on SIGINT/SIGTERM and at the end (the host and the device loop share it)."""
+
+    def run(self) -> int:
+        """Train to ``train.steps`` env steps; returns the process exit code."""
+        train = self.config.train
+        with checkpoint.StopSignal() as stop:
+            while self.env_steps < train.steps and not stop.requested:
+                self.iteration()
+            if not stop.requested and self.counters.last_eval != self.env_steps:
+                self.evaluate()  # the final score
+            self.save()
+        self.progress.close()
+        if stop.requested:
+            name = signal.Signals(stop.received).name
+            self.out(f"{name}: saved a checkpoint at env step {self.env_steps}; rerun the "
+                     "same command to resume")
+            return 128 + stop.received
+        self.out(f"done: {self.env_steps} env steps, {self.counters.updates} updates")
+        return self.exit_code()
+
+    def exit_code(self) -> int:
+        return 0
+
+
+class Trainer(LoopDriver):
     """A training run of one or more seeds in one process (new or resumed).
 
     ``configs`` (one per seed, equal but for ``train.seed``) and ``logdirs`` may be a single
@@ -465,22 +519,7 @@ class Trainer:
         return self.env_steps < self.config.train.prefill or any(
             run.replay.num_sequences == 0 for run in self.runs)
 
-    def run(self) -> int:
-        """Train to ``train.steps`` env steps; returns the process exit code."""
-        train = self.config.train
-        with checkpoint.StopSignal() as stop:
-            while self.env_steps < train.steps and not stop.requested:
-                self.iteration()
-            if not stop.requested and self.counters.last_eval != self.env_steps:
-                self.evaluate()  # the final score
-            self.save()
-        self.progress.close()
-        if stop.requested:
-            name = signal.Signals(stop.received).name
-            self.out(f"{name}: saved a checkpoint at env step {self.env_steps}; rerun the "
-                     "same command to resume")
-            return 128 + stop.received
-        self.out(f"done: {self.env_steps} env steps, {self.counters.updates} updates")
+    def exit_code(self) -> int:
         if self.stopped:
             self.out(f"seeds {group_label(self.stopped)} stopped early on non-finite metrics")
             return 1
@@ -646,12 +685,38 @@ def _json_safe(record: dict) -> dict:
             for k, v in record.items()}
 
 
+def resolve_loop(config: Config) -> str:
+    """``host`` or ``device`` for ``train.loop`` (``auto``: device for tasks that step in JAX);
+    raises ConfigError for a loop that cannot drive the task."""
+    task, loop = config.env.task, config.train.loop
+    on_device = parse_task(task)[0] in DEVICE_FAMILIES
+    if loop == "auto":
+        return "device" if on_device else "host"
+    if loop == "device" and not on_device:
+        raise ConfigError("train.loop=device needs a task that steps inside JAX ("
+                          + ", ".join(f"{f}_*" for f in DEVICE_FAMILIES) + f"); {task!r} is a "
+                          "host environment: use train.loop=host or auto")
+    if loop == "host" and on_device:
+        raise ConfigError(f"{task!r} steps only on the device: use train.loop=device or auto")
+    return loop
+
+
+def make_trainer(configs: list[Config], logdirs: list[Path], *, progress: bool = True):
+    """The host-loop :class:`Trainer` or, for ``train.loop=device``, the device loop's."""
+    if resolve_loop(configs[0]) == "device":
+        from vsgjax.device_train import DeviceTrainer
+
+        return DeviceTrainer(configs, logdirs, progress=progress)
+    return Trainer(configs, logdirs, progress=progress)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         seeds, overrides = parse_seeds(args)
         configs, notes = build_configs(args, seeds, overrides)
         logdirs = seed_logdirs(args, seeds)
+        loop = resolve_loop(configs[0])
     except (ConfigError, TaskError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -660,18 +725,20 @@ def main(argv: list[str] | None = None) -> int:
     print(f"vsgjax train: task={config.env.task} model={config.model.name} size={config.size} "
           f"({notes['size']}) {'seeds' if len(seeds) > 1 else 'seed'}={group_label(seeds)} "
           f"steps={config.train.steps} precision={config.model.precision} "
-          f"({notes['precision']})", flush=True)
+          f"({notes['precision']}) loop={loop}", flush=True)
     print(f"device: {device_line()}\n{allocator_line()}\nlogdir: "
           + ", ".join(map(str, logdirs)), flush=True)
     try:
-        trainer = Trainer(configs, logdirs, progress=not args.no_progress)
-    except ConfigError as error:
+        trainer = make_trainer(configs, logdirs, progress=not args.no_progress)
+    except (ConfigError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     try:
         print(trainer.describe(), flush=True)
-        if len(seeds) > 1 or trainer.parallel.mesh_shape != (1, 1):
-            print(trainer.parallel.describe(), flush=True)
+        parallel = getattr(trainer, "parallel", None)
+        if len(seeds) > 1 or (parallel is not None and parallel.mesh_shape != (1, 1)):
+            print(parallel.describe() if parallel else f"{len(seeds)} seeds in one program",
+                  flush=True)
         return trainer.run()
     except NonFiniteLossError:  # each seed's reason and last checkpoint are printed already
         return 1

@@ -4,6 +4,8 @@
 ``bbs_<variant>``           BringBackShapes (``bbs`` package), the 16 paper variants
 ``dmc_<domain>_<task>``     DeepMind Control Suite, rendered 64x64 RGB (see ``dmc.py``)
 ``atari_<game>``            Atari through ale-py, DreamerV2 settings (see ``atari.py``)
+``mjx_<domain>_<task>``     DeepMind Control on MuJoCo MJX, vector observations, stepped on
+                            the device by the jitted loop (``mjx/``; not a gymnasium env)
 ==========================  ==========================================================
 
 Every env made here is a ``gymnasium.Env`` whose observation is a uint8 image ``(H, W, C)``
@@ -24,7 +26,8 @@ import numpy as np
 from vsgjax.config import EnvConfig
 from vsgjax.envs.wrappers import DefaultSeed
 
-TASK_PATTERNS = ("bbs_<variant>", "dmc_<domain>_<task>", "atari_<game>")
+TASK_PATTERNS = ("bbs_<variant>", "dmc_<domain>_<task>", "atari_<game>", "mjx_<domain>_<task>")
+DEVICE_FAMILIES = ("mjx",)  # tasks that step inside JAX (vsgjax/device_loop.py), not gymnasium
 EVAL_SEED_OFFSET = 1_000_000  # eval env seeds are seed + offset, never a training env's seed
 
 
@@ -83,7 +86,14 @@ def _one_of(task: str, name: str, valid, family: str, what: str) -> str:
     return name
 
 
-_PARSERS = {"bbs": _parse_bbs, "dmc": _parse_dmc, "atari": _parse_atari}
+def _parse_mjx(task: str, rest: str) -> tuple[str]:
+    from vsgjax.envs.mjx import parse_mjx_task
+
+    parse_mjx_task(task)
+    return (rest,)
+
+
+_PARSERS = {"bbs": _parse_bbs, "dmc": _parse_dmc, "atari": _parse_atari, "mjx": _parse_mjx}
 
 
 def make_env(env_cfg: EnvConfig, seed: int, *, eval: bool = False) -> gymnasium.Env:
@@ -92,6 +102,9 @@ def make_env(env_cfg: EnvConfig, seed: int, *, eval: bool = False) -> gymnasium.
         raise ValueError(f"action_repeat, time_limit and image_size must be >= 1, got "
                          f"{env_cfg.action_repeat}, {env_cfg.time_limit}, {env_cfg.image_size}")
     family, args = parse_task(env_cfg.task)
+    if family in DEVICE_FAMILIES:
+        raise TaskError(f"{env_cfg.task!r} steps on the device, not as a gymnasium env; it "
+                        "trains with the device loop (train.loop=device or auto)")
     if family != "atari" and (env_cfg.grayscale or env_cfg.sticky):
         raise ValueError(f"grayscale={env_cfg.grayscale} and sticky={env_cfg.sticky} are Atari "
                          f"options; task {env_cfg.task!r} needs grayscale=False and sticky=0")

@@ -3,7 +3,7 @@
 An *episode* is a dict of numpy arrays sharing the leading time dimension T (the sequence-batch
 format of the project without the batch dimension)::
 
-    image        uint8   [T, H, W, C]  C = 3 (RGB) or 1 (grayscale)
+    image        uint8   [T, H, W, C]  C = 3 (RGB) or 1 (grayscale); absent in vector tasks
     action       float32 [T, A]        action that led to obs t (zeros at t = 0)
     reward       float32 [T]           reward on arriving at obs t (0 at t = 0)
     is_first     bool    [T]           True exactly at t = 0
@@ -68,7 +68,6 @@ STEP_NS = 50_000_000  # nominal time between steps in the file (20 Hz)
 IMAGE_KEY = "image"
 # key -> (dtype, ndim including time) of the keys every episode has
 REQUIRED_KEYS = {
-    "image": (np.dtype(np.uint8), 4),
     "action": (np.dtype(np.float32), 2),
     "reward": (np.dtype(np.float32), 1),
     "is_first": (np.dtype(bool), 1),
@@ -115,7 +114,11 @@ def episode_length(episode: Mapping[str, np.ndarray]) -> int:
     length = lengths["is_first"]
     if length < 1 or any(n != length for n in lengths.values()):
         raise ValueError(f"episode arrays need one shared length >= 1, got lengths {lengths}")
-    if episode[IMAGE_KEY].shape[-1] not in _IMAGE_ENCODINGS:
+    image = episode.get(IMAGE_KEY)
+    if image is not None and (image.dtype != np.uint8 or image.ndim != 4):
+        raise ValueError(f"episode['image'] must be a uint8 array of rank 4, got "
+                         f"{image.dtype}{list(image.shape)}")
+    if image is not None and image.shape[-1] not in _IMAGE_ENCODINGS:
         raise ValueError(f"episode images need 1 or 3 channels, got shape {episode['image'].shape}")
     first = episode["is_first"]
     if not first[0] or first[1:].any():
