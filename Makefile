@@ -28,11 +28,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e ".[dev]"
 	@touch $(STAMP)
 
+# Two worker processes, whole files each: no single process accumulates every test's compiled
+# programs (one long process once died in XLA's compiler after ~70% of the suite).
+XDIST    = -n 2 --dist loadfile
+
 test: setup
-	$(RUN) -m pytest -q $(PYTEST_ARGS)
+	$(RUN) -m pytest -q $(XDIST) $(PYTEST_ARGS)
 
 test-fast: setup
-	$(RUN) -m pytest -q -m "not slow" $(PYTEST_ARGS)
+	$(RUN) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
 
 bench: setup
 	$(RUN) -m experiments.bench.run_all

@@ -69,7 +69,7 @@ class DeviceTrainer(LoopDriver):
             run.open_logs(self.env_steps)
         self._update_replay_steps()
         self.progress = Progress(self.config.train.steps, self.env_steps, enabled=progress)
-        self._started = time.monotonic()
+        self._started, self._start_steps = time.monotonic(), self.env_steps
 
     def _target(self, run: RunFiles) -> LoopState:
         return jax.eval_shape(self.loop.init, jax.random.PRNGKey(run.seed))
@@ -179,7 +179,8 @@ class DeviceTrainer(LoopDriver):
         c.next_log = (self.env_steps // self.config.train.log_every + 1) * \
             self.config.train.log_every
         elapsed = max(time.monotonic() - self._started, 1e-9)
-        shared = {"env_steps_per_s": self.env_steps / elapsed, "updates": c.updates}
+        shared = {"env_steps_per_s": (self.env_steps - self._start_steps) / elapsed,
+                  "updates": c.updates}
         records = [run.log(self.env_steps, shared) for run in self.runs]
         returns = "/".join(f"{r['return']:.3g}" for r in records if "return" in r)
         self.progress.write(f"train env step {self.env_steps:>9}: updates {c.updates}, "

@@ -58,7 +58,7 @@ def lax_convolutions():
     from vsgjax import networks
 
     def flat(fn):
-        def apply(x, kernel):
+        def apply(x, kernel, dtype=None):  # the FLOP count does not depend on the dtype
             y = fn(x.reshape((-1,) + x.shape[-3:]), kernel)
             return y.reshape(x.shape[:-3] + y.shape[1:])
         return staticmethod(apply)
