@@ -28,20 +28,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -q -e ".[dev]"
 	@touch $(STAMP)
 
-# Two worker processes, whole files each; the MJX tests in a process of their own: three
-# full-suite runs died inside XLA's CPU compiler, each in a process that had also run MJX code
-# (the failing tests pass alone). Workaround, root cause not proven (README, limitations).
-XDIST     = -n 2 --dist loadfile
-MJX_TESTS = tests/test_mjx_envs.py tests/test_device_loop.py
-NOT_MJX   = $(foreach t,$(MJX_TESTS),--ignore=$(t))
+# Two worker processes, whole files each (tests/conftest.py frees compiled programs after
+# every file: a long process that kept them all ran out of memory mappings in XLA's compiler).
+XDIST = -n 2 --dist loadfile
 
 test: setup
-	$(RUN) -m pytest -q $(XDIST) $(NOT_MJX) $(PYTEST_ARGS)
-	$(RUN) -m pytest -q $(MJX_TESTS) $(PYTEST_ARGS)
+	$(RUN) -m pytest -q $(XDIST) $(PYTEST_ARGS)
 
 test-fast: setup
-	$(RUN) -m pytest -q $(XDIST) $(NOT_MJX) -m "not slow" $(PYTEST_ARGS)
-	$(RUN) -m pytest -q $(MJX_TESTS) -m "not slow" $(PYTEST_ARGS)
+	$(RUN) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
 
 bench: setup
 	$(RUN) -m experiments.bench.run_all
