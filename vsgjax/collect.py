@@ -16,15 +16,19 @@ Two drivers with the same interface and, given the same seeds, the same transiti
 agent's policy at the training loop's chunk of 5 steps, and it compiles in a fraction of the
 time, so it is the default; the scan stays available (and gives identical transitions).
 
-Observations reach the policy as a dict of ``[N, ...]`` arrays: ``image`` uint8, ``reward``
-float32, ``is_first``, ``is_terminal``, ``is_last`` bool. Envs use gymnasium's NEXT_STEP
+Observations reach the policy as a dict of ``[N, ...]`` arrays: the observation keys of the
+env's spec (``EnvSpec.obs``: ``image`` uint8 for the image tasks, ``vector`` float32 for the
+MJX tasks), ``reward`` float32, ``is_first``, ``is_terminal``, ``is_last`` bool. Envs are
+gymnasium envs (``image`` observations) or one gymnasium vector env with dict observations
+(the MJX tasks' :class:`vsgjax.envs.mjx.host.MjxVectorEnv`). Envs use gymnasium's NEXT_STEP
 autoreset: the step after an ``is_last`` observation ignores the action and returns the new
 episode's first observation (``is_first``, reward 0). Every observation therefore reaches the
 policy exactly once, in order, as in the sequence format of the replay (a policy's carry resets
 where ``is_first``). Each env's transitions are recorded into episode dicts in that format::
 
-      image [T,H,W,C] uint8, action [T,A] float32 (the action that led to obs t; zeros at t=0;
-      one-hot if discrete), reward [T] float32 (0 at t=0), is_first [T], is_terminal [T] bool
+      image [T,H,W,C] uint8 (or the spec's keys: vector [T,D] float32), action [T,A] float32
+      (the action that led to obs t; zeros at t=0; one-hot if discrete), reward [T] float32
+      (0 at t=0), is_first [T], is_terminal [T] bool
 
 and every finished episode is handed to ``on_episode(episode, env_index, info)`` after the
 chunk in which it finished (outside jit, so the callback may use JAX, write files or log).
@@ -45,13 +49,16 @@ import numpy as np
 from jax.experimental import io_callback
 
 from vsgjax.config import EnvConfig
-from vsgjax.envs import EnvSpec, env_spec, make_env
+from vsgjax.envs import DEVICE_FAMILIES, EnvSpec, env_spec, make_env, parse_task
+from vsgjax.observations import IMAGE_KEY
 
 Policy = Callable[[Any, Any, dict, jax.Array], tuple[Any, jax.Array]]
 OnEpisode = Callable[[dict, int, dict], None]
 MODES = ("scan", "loop")
 DEFAULT_CHUNK = 50
-EPISODE_KEYS = ("image", "action", "reward", "is_first", "is_terminal")
+# recorded per step besides the observation keys; what the stream holds besides the actions
+STEP_KEYS = ("reward", "is_first", "is_terminal")
+STREAM_KEYS = (*STEP_KEYS, "is_last")
 
 
 # --- host side -------------------------------------------------------------------------------
@@ -60,30 +67,26 @@ EPISODE_KEYS = ("image", "action", "reward", "is_first", "is_terminal")
 class EnvBatch:
     """N envs stepped together on the host (worker processes when N > 1), recording episodes.
 
-    ``env_fns`` build the envs; they must be picklable when workers are used (module-level
-    functions or ``functools.partial`` of them).
+    ``envs``: functions that build the envs (they must be picklable when workers are used:
+    module-level functions or ``functools.partial`` of them), or one gymnasium vector env with
+    NEXT_STEP autoreset that steps all N itself (e.g. the MJX tasks' ``MjxVectorEnv``).
     """
 
-    def __init__(self, env_fns: Sequence[Callable[[], gymnasium.Env]], *,
-                 workers: bool | None = None):
-        workers = len(env_fns) > 1 if workers is None else workers
-        mode = gymnasium.vector.AutoresetMode.NEXT_STEP
-        if workers:
-            self._envs = gymnasium.vector.AsyncVectorEnv(env_fns, context="spawn",
-                                                         autoreset_mode=mode)
-        else:
-            self._envs = gymnasium.vector.SyncVectorEnv(env_fns, autoreset_mode=mode)
+    def __init__(self, envs: Sequence[Callable[[], gymnasium.Env]] | gymnasium.vector.VectorEnv,
+                 *, workers: bool | None = None):
+        self._envs = _vector_env(envs, workers)
         self.spec: EnvSpec = env_spec(self._envs)
-        self.num_envs = len(env_fns)
+        self.num_envs = self._envs.num_envs
         self._done = np.zeros(self.num_envs, bool)
-        self._episodes: list[dict[str, list]] = [_empty_episode() for _ in range(self.num_envs)]
+        self._episodes = [self._empty_episode() for _ in range(self.num_envs)]
         self._returns = np.zeros(self.num_envs, np.float64)
         self.finished: list[tuple[dict, int, dict]] = []
 
     def observation_struct(self) -> dict[str, jax.ShapeDtypeStruct]:
         """Shapes and dtypes of one batched observation (the io_callback's result)."""
-        n = self.num_envs
-        return {"image": jax.ShapeDtypeStruct((n, *self.spec.obs_shape), jnp.uint8),
+        n, obs = self.num_envs, self.spec.obs
+        return {**{key: jax.ShapeDtypeStruct((n, *shape), obs.dtype(key))
+                   for key, shape in obs.entries},
                 "reward": jax.ShapeDtypeStruct((n,), jnp.float32),
                 "is_first": jax.ShapeDtypeStruct((n,), jnp.bool_),
                 "is_terminal": jax.ShapeDtypeStruct((n,), jnp.bool_),
@@ -91,12 +94,12 @@ class EnvBatch:
 
     def reset(self) -> dict[str, np.ndarray]:
         """Reset every env (each with the seed it was made with) and start new episodes."""
-        images, _ = self._envs.reset()
+        observation, _ = self._envs.reset()
         n = self.num_envs
         self._done[:] = False
-        self._episodes = [_empty_episode() for _ in range(n)]
+        self._episodes = [self._empty_episode() for _ in range(n)]
         self._returns[:] = 0.0
-        obs = _observation(images, np.zeros(n, np.float32), np.ones(n, bool),
+        obs = _observation(observation, np.zeros(n, np.float32), np.ones(n, bool),
                            np.zeros(n, bool), np.zeros(n, bool))
         self._record(obs, np.zeros((n, self.spec.action_dim), np.float32), {})
         return obs
@@ -105,20 +108,21 @@ class EnvBatch:
         """Step every env with the agent's actions ``[N, A]`` (one-hot if discrete)."""
         action = np.asarray(action, np.float32)
         env_action = action.argmax(-1) if self.spec.discrete else action
-        images, reward, terminated, truncated, infos = self._envs.step(env_action)
+        observation, reward, terminated, truncated, infos = self._envs.step(env_action)
         is_first = self._done.copy()  # NEXT_STEP: these envs just reset and ignored the action
         self._done = terminated | truncated
-        obs = _observation(images, reward.astype(np.float32), is_first, terminated, self._done)
+        obs = _observation(observation, reward.astype(np.float32), is_first, terminated,
+                           self._done)
         self._record(obs, np.where(is_first[:, None], 0.0, action).astype(np.float32), infos)
         return obs
 
     def _record(self, obs: dict[str, np.ndarray], action: np.ndarray, infos: dict) -> None:
         for i in range(self.num_envs):
             if obs["is_first"][i]:
-                self._episodes[i] = _empty_episode()
+                self._episodes[i] = self._empty_episode()
                 self._returns[i] = 0.0
             episode = self._episodes[i]
-            for key in ("image", "reward", "is_first", "is_terminal"):
+            for key in (*self.spec.obs.keys, *STEP_KEYS):
                 episode[key].append(obs[key][i])
             episode["action"].append(action[i])
             self._returns[i] += obs["reward"][i]
@@ -127,17 +131,36 @@ class EnvBatch:
                         **_env_info(infos, i)}
                 self.finished.append(({k: np.stack(v) for k, v in episode.items()}, i, info))
 
+    def _empty_episode(self) -> dict[str, list]:
+        return {key: [] for key in (*self.spec.obs.keys, "action", *STEP_KEYS)}
+
     def close(self) -> None:
         self._envs.close()
 
 
-def _empty_episode() -> dict[str, list]:
-    return {key: [] for key in EPISODE_KEYS}
+def _vector_env(envs, workers: bool | None) -> gymnasium.vector.VectorEnv:
+    """``envs`` as one NEXT_STEP-autoreset vector env (see :class:`EnvBatch`)."""
+    mode = gymnasium.vector.AutoresetMode.NEXT_STEP
+    if isinstance(envs, gymnasium.vector.VectorEnv):
+        if workers:
+            raise ValueError("workers=True applies to env functions; a vector env steps its "
+                             "envs itself")
+        if envs.metadata.get("autoreset_mode") != mode:
+            raise ValueError(f"the vector env must autoreset with {mode}, got "
+                             f"{envs.metadata.get('autoreset_mode')}")
+        return envs
+    workers = len(envs) > 1 if workers is None else workers
+    if workers:
+        return gymnasium.vector.AsyncVectorEnv(envs, context="spawn", autoreset_mode=mode)
+    return gymnasium.vector.SyncVectorEnv(envs, autoreset_mode=mode)
 
 
-def _observation(images, reward, is_first, is_terminal, is_last) -> dict[str, np.ndarray]:
-    return {"image": images, "reward": reward, "is_first": is_first,
-            "is_terminal": is_terminal, "is_last": is_last}
+def _observation(observation, reward, is_first, is_terminal, is_last) -> dict[str, np.ndarray]:
+    """The batched observation dict: the env's observation keys (a plain array is the
+    ``image``), then the step's reward and flags."""
+    keys = dict(observation) if isinstance(observation, dict) else {IMAGE_KEY: observation}
+    return {**keys, "reward": reward, "is_first": is_first, "is_terminal": is_terminal,
+            "is_last": is_last}
 
 
 def _env_info(infos: dict, index: int) -> dict[str, float]:
@@ -208,9 +231,15 @@ def _stack_observations(observations: list[dict]) -> dict[str, np.ndarray]:
 
 def make_env_batch(env_cfg: EnvConfig, seed: int, num_envs: int, *, eval: bool = False,
                    workers: bool | None = None) -> EnvBatch:
-    """``num_envs`` envs of ``env_cfg.task`` seeded ``seed, seed + 1, ...``."""
+    """``num_envs`` envs of ``env_cfg.task`` seeded ``seed, seed + 1, ...`` (eval envs on the
+    disjoint range ``+ EVAL_SEED_OFFSET``); the ``mjx_`` tasks as one vectorised MJX env."""
     if num_envs < 1:
         raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    if parse_task(env_cfg.task)[0] in DEVICE_FAMILIES:
+        from vsgjax.envs.mjx.host import make_mjx_vector_env
+
+        return EnvBatch(make_mjx_vector_env(env_cfg, seed, num_envs, eval=eval),
+                        workers=workers)
     fns = [functools.partial(make_env, env_cfg, seed + i, eval=eval) for i in range(num_envs)]
     return EnvBatch(fns, workers=workers)
 
@@ -305,7 +334,7 @@ def step_keys(key: jax.Array, chunk: int) -> jax.Array:
 
 
 def _stream_entry(action, obs: dict) -> dict:
-    return {"action": action, **{k: v for k, v in obs.items() if k != "image"}}
+    return {"action": action, **{k: obs[k] for k in STREAM_KEYS}}
 
 
 def _scan_chunk(policy: Policy, envs: EnvBatch, chunk: int, params, carry, obs, key):

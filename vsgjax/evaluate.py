@@ -151,7 +151,7 @@ def evaluate_logdir(logdir: Path, episodes: int | None = None, seed: int | None 
     seed = config.train.seed if seed is None else seed
     episodes = config.train.eval_episodes if episodes is None else episodes
     envs = make_env_batch(config.env, seed, config.env.eval_envs, eval=True)
-    agent = Agent(config, envs.spec.obs_shape, envs.spec.action_dim, envs.spec.discrete)
+    agent = Agent(config, envs.spec.obs, envs.spec.action_dim, envs.spec.discrete)
     key = jax.random.PRNGKey(seed)
     restored = restore_latest(logdir / "checkpoints", agent, key)
     if restored is None:

@@ -16,9 +16,11 @@ the compiled program's cache key, like a static argument), no global state is co
 without ``key`` the fixed ``jax.random.PRNGKey(0)`` makes the call deterministic. Plain
 params dicts with ``config=`` and ``key=`` keep working as before.
 
-Nothing here builds an environment when the run has stored episodes: the observation shape
-and action size are read from the newest episode, and the action space is discrete exactly
-for Atari tasks (BringBackShapes and DMC are continuous). Episodes are read from
+Nothing here builds an environment when the run has stored episodes: the observation spec
+(``image`` for the pixel tasks, ``vector`` for the MJX tasks: every episode key that is not
+an action, reward or flag) and the action size are read from the newest episode, and the
+action space is discrete exactly for Atari tasks (BringBackShapes, DMC and MJX are
+continuous). Episodes are read from
 ``<logdir>/episodes/`` only when asked for.
 """
 
@@ -39,10 +41,11 @@ from vsgjax.config import Config
 from vsgjax.envs import EnvSpec, parse_task
 from vsgjax.evaluate import load_config, restore_latest
 from vsgjax.networks import float_to_image
+from vsgjax.observations import IMAGE_KEY, NON_OBS_KEYS, ObsSpec
 from vsgjax.replay.store import read_episode
 from vsgjax.world_model import WorldModel
 
-OBSERVE_KEYS = ("image", "action", "is_first")  # what the posterior reads from an episode
+STEP_INPUTS = ("action", "is_first")  # what the posterior reads besides the observations
 
 
 class Run:
@@ -64,7 +67,7 @@ class Run:
 
     @functools.cached_property
     def agent(self) -> Agent:
-        return Agent(self.config, self.spec.obs_shape, self.spec.action_dim, self.spec.discrete)
+        return Agent(self.config, self.spec.obs, self.spec.action_dim, self.spec.discrete)
 
     @property
     def world_model(self) -> WorldModel:
@@ -133,12 +136,14 @@ class Run:
     def observe(self, episode: dict, key: jax.Array | None = None, *, priors: bool = False):
         """Posterior states of an episode (or a batch of episodes with a leading dim).
 
-        ``episode``: ``image`` [T, 64, 64, C], ``action`` [T, A], ``is_first`` [T] (other keys
-        ignored). Returns the posteriors [T, ...] (``[B, T, ...]`` for a batch), or
-        ``(posteriors, priors)`` with ``priors=True``. ``key`` defaults to PRNGKey(0).
+        ``episode``: the run's observation keys (``image`` [T, 64, 64, C], ``vector`` [T, D]),
+        ``action`` [T, A], ``is_first`` [T] (other keys ignored). Returns the posteriors
+        [T, ...] (``[B, T, ...]`` for a batch), or ``(posteriors, priors)`` with
+        ``priors=True``. ``key`` defaults to PRNGKey(0).
         """
-        batched = np.ndim(episode["image"]) == 5
-        seq = {k: jnp.asarray(episode[k]) for k in OBSERVE_KEYS}
+        spec = self.agent.obs_shape
+        batched = len(spec.check(episode)) == 2
+        seq = {k: jnp.asarray(episode[k]) for k in (*spec.keys, *STEP_INPUTS)}
         if not batched:
             seq = {k: v[None] for k, v in seq.items()}
         seq["action"] = seq["action"].astype(jnp.float32)
@@ -183,7 +188,7 @@ def _reward(config: Config, wm_params: dict, states) -> jax.Array:
 
 
 def env_spec_of(logdir: Path, config: Config) -> EnvSpec:
-    """Observation shape and action space of the run's env, from its newest stored episode
+    """Observation spec and action space of the run's env, from its newest stored episode
     (building one env only when the run has none)."""
     paths = sorted((logdir / "episodes").glob("*.mcap")) if (logdir / "episodes").is_dir() \
         else []
@@ -193,15 +198,23 @@ def env_spec_of(logdir: Path, config: Config) -> EnvSpec:
         except Exception:  # a corrupt file: try the previous one
             continue
         discrete = parse_task(config.env.task)[0] == "atari"
-        return EnvSpec(tuple(episode["image"].shape[1:]), int(episode["action"].shape[-1]),
-                       discrete)
-    from vsgjax.envs import env_spec, make_env
+        return EnvSpec(_obs_shape_of(episode), int(episode["action"].shape[-1]), discrete)
+    from vsgjax.collect import make_env_batch
 
-    env = make_env(config.env, config.train.seed, eval=True)
+    envs = make_env_batch(config.env, config.train.seed, 1, eval=True)
     try:
-        return env_spec(env)
+        return envs.spec
     finally:
-        env.close()
+        envs.close()
+
+
+def _obs_shape_of(episode: dict) -> tuple[int, ...] | ObsSpec:
+    """An episode's observation keys (all but action, reward and flags) as an EnvSpec's
+    ``obs_shape``: the image shape for an image-only episode, as the envs report it."""
+    shapes = {k: v.shape[1:] for k, v in episode.items() if k not in NON_OBS_KEYS}
+    if list(shapes) == [IMAGE_KEY]:
+        return tuple(shapes[IMAGE_KEY])
+    return ObsSpec.from_dict(shapes)
 
 
 def load(logdir: str | Path) -> Run:
@@ -220,7 +233,7 @@ def load(logdir: str | Path) -> Run:
         raise FileNotFoundError(f"no checkpoint in {ckpt_dir}: {logdir} has no trained state "
                                 "yet (checkpoints are written during training)")
     spec = env_spec_of(logdir, config)
-    agent = Agent(config, spec.obs_shape, spec.action_dim, spec.discrete)
+    agent = Agent(config, spec.obs, spec.action_dim, spec.discrete)
     restored = restore_latest(ckpt_dir, agent, jax.random.PRNGKey(config.train.seed))
     if restored is None:
         raise FileNotFoundError(f"no readable checkpoint in {ckpt_dir}")

@@ -21,6 +21,11 @@ on the same ``--logdir`` resumes from the newest checkpoint: agent state, PRNG k
 replay sampler state and scores come back, and the replay is reloaded from ``episodes/``; the
 episodes that were unfinished when the run stopped are lost. A non-finite loss stops training
 with a message naming the update and the metrics, without checkpointing that state.
+
+``train.loop`` picks the loop: this host loop (``host``; the default for gymnasium tasks) or,
+for the ``mjx_`` tasks, the fully jitted device loop (``device``, their default;
+:mod:`vsgjax.device_train`). The host loop drives the ``mjx_`` tasks too, as one vectorised
+env (:mod:`vsgjax.envs.mjx.host`), with vector observations and no videos.
 """
 
 from __future__ import annotations
@@ -61,9 +66,10 @@ from vsgjax.evaluate import (
 )
 from vsgjax.host import allocator_line
 from vsgjax.logger import Logger, Progress, truncate_metrics
+from vsgjax.observations import IMAGE_KEY
 from vsgjax.parallel import Parallel, mesh_shape, resolve_devices, split_keys, stack, take
 from vsgjax.replay import EpisodeStore, Replay
-from vsgjax.videos import open_loop_video
+from vsgjax.videos import has_video, open_loop_video
 
 METHOD_NAMES = {"dreamerv1": "DreamerV1", "dreamerv2": "DreamerV2", "vsg": "VSG",
                 "svsg": "SVSG", "ssm": "SSM"}  # as in ../shared/reference_scores
@@ -89,7 +95,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         description="Train a world-model agent (see `make train`).",
         epilog="Overrides are dotted config keys, e.g. train.steps=50000 wm.kl_scale=0.3.")
     parser.add_argument("--task", default="bbs_basic",
-                        help="bbs_<variant>, dmc_<domain>_<task> or atari_<game>")
+                        help="bbs_<variant>, dmc_<domain>_<task>, atari_<game> or "
+                             "mjx_<domain>_<task>")
     parser.add_argument("--model", default="vsg", help=f"one of {', '.join(MODELS)}")
     parser.add_argument("--size", default="auto",
                         help=f"auto (small on CPU, paper on GPU) or one of {', '.join(SIZES)}")
@@ -446,7 +453,8 @@ class Trainer(LoopDriver):
         self.runs = [SeedRun(c, d) for c, d in zip(configs, logdirs, strict=True)]
         eval_envs = [make_envs(c.env, c.train.seed, env.eval_envs, eval=True) for c in configs]
         spec = eval_envs[0].spec
-        self.agent = Agent(self.config, spec.obs_shape, spec.action_dim, spec.discrete)
+        self.agent = Agent(self.config, spec.obs, spec.action_dim, spec.discrete)
+        self._said_no_videos = False
         restored = restore_seeds(self.runs, self.agent)
         self.resumed = restored is not None
         if restored is None:
@@ -659,13 +667,24 @@ class Trainer(LoopDriver):
         self.counters.last_eval = step
         if step >= self.counters.next_video:
             self.counters.next_video = next_multiple(step, train.video_every)
-            keys = self._next_keys()
-            for i, (run, episode) in enumerate(zip(self.runs, recorded, strict=True)):
-                run.logger.video("eval", step, episode["image"])
-                frames = open_loop_video(self.config, take(self.state.params["wm"], i), episode,
-                                         keys[i])
-                if frames is not None:
-                    run.logger.video("open_loop", step, frames, fps=10)
+            self._videos(step, recorded)
+
+    def _videos(self, step: int, recorded: list[dict]) -> None:
+        """Each seed's eval and open-loop videos of its first eval episode; for observations
+        without images, a note (once per process) instead."""
+        if not has_video(recorded[0]):
+            if not self._said_no_videos:
+                self.progress.write(f"no videos: the observations of {self.config.env.task} "
+                                    f"have no image (keys {', '.join(self.agent.obs_shape.keys)})")
+                self._said_no_videos = True
+            return
+        keys = self._next_keys()
+        for i, (run, episode) in enumerate(zip(self.runs, recorded, strict=True)):
+            run.logger.video("eval", step, episode[IMAGE_KEY])
+            frames = open_loop_video(self.config, take(self.state.params["wm"], i), episode,
+                                     keys[i])
+            if frames is not None:
+                run.logger.video("open_loop", step, frames, fps=10)
 
     def save(self) -> None:
         self.counters.last_ckpt_updates = self.counters.updates
@@ -686,8 +705,9 @@ def _json_safe(record: dict) -> dict:
 
 
 def resolve_loop(config: Config) -> str:
-    """``host`` or ``device`` for ``train.loop`` (``auto``: device for tasks that step in JAX);
-    raises ConfigError for a loop that cannot drive the task."""
+    """``host`` or ``device`` for ``train.loop`` (``auto``: device for tasks that step in JAX,
+    which the host loop drives too, through their vector env); raises ConfigError for the
+    device loop on a host task."""
     task, loop = config.env.task, config.train.loop
     on_device = parse_task(task)[0] in DEVICE_FAMILIES
     if loop == "auto":
@@ -695,9 +715,8 @@ def resolve_loop(config: Config) -> str:
     if loop == "device" and not on_device:
         raise ConfigError("train.loop=device needs a task that steps inside JAX ("
                           + ", ".join(f"{f}_*" for f in DEVICE_FAMILIES) + f"); {task!r} is a "
-                          "host environment: use train.loop=host or auto")
-    if loop == "host" and on_device:
-        raise ConfigError(f"{task!r} steps only on the device: use train.loop=device or auto")
+                          "host environment (gymnasium, stepped in Python): use train.loop=host "
+                          "or auto")
     return loop
 
 

@@ -7,6 +7,8 @@ own actions for the remaining frames. Each video frame is, left to right::
     [ ground truth | sample 1 | ... | sample S ]
 
 where every sample is a separate draw of latent states and gates from the same context.
+Videos need images: an episode without an ``image`` key (the MJX tasks' vector observations)
+has none (:func:`has_video`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 from vsgjax import api
 from vsgjax.config import Config
 from vsgjax.networks import float_to_image
+from vsgjax.observations import IMAGE_KEY
 
 CONTEXT = 15
 HORIZON = 35
@@ -58,10 +61,19 @@ def open_loop_frames(config: Config, wm_params: dict, episode: dict, key: jax.Ar
     return np.concatenate([truth, *np.asarray(predicted)], axis=2)
 
 
+def has_video(episode: dict) -> bool:
+    """Whether an episode has frames to show: an ``image`` key (vector-only tasks have none,
+    and their world model decodes no images)."""
+    return IMAGE_KEY in episode
+
+
 def open_loop_video(config: Config, wm_params: dict, episode: dict, key: jax.Array
                     ) -> np.ndarray | None:
     """Frames for the run's open-loop video, shortening context and horizon (in the 15:35
-    ratio) for short episodes or sequences; None when the episode has fewer than 4 steps."""
+    ratio) for short episodes or sequences; None when the episode has fewer than 4 steps or
+    no images (:func:`has_video`)."""
+    if not has_video(episode):
+        return None
     available = min(len(episode["image"]), CONTEXT + HORIZON)
     if available < 4:
         return None

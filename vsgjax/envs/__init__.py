@@ -5,7 +5,8 @@
 ``dmc_<domain>_<task>``     DeepMind Control Suite, rendered 64x64 RGB (see ``dmc.py``)
 ``atari_<game>``            Atari through ale-py, DreamerV2 settings (see ``atari.py``)
 ``mjx_<domain>_<task>``     DeepMind Control on MuJoCo MJX, vector observations, stepped on
-                            the device by the jitted loop (``mjx/``; not a gymnasium env)
+                            the device (``mjx/``; not a gymnasium env: the device loop
+                            runs them, the host loop through ``mjx/host.py``'s vector env)
 ==========================  ==========================================================
 
 Every env made here is a ``gymnasium.Env`` whose observation is a uint8 image ``(H, W, C)``
@@ -13,7 +14,9 @@ Every env made here is a ``gymnasium.Env`` whose observation is a uint8 image ``
 ``Discrete(n)`` (the agent acts with one-hot vectors; ``vsgjax.collect`` converts). Action
 repeat and the time limit come from ``EnvConfig`` (``time_limit`` counts env steps, before
 action repeat). ``make_env(cfg, seed)`` returns an env whose first ``reset()`` is seeded with
-``seed``; evaluation envs (``eval=True``) draw from a disjoint seed range.
+``seed``; evaluation envs (``eval=True``) draw from a disjoint seed range (``seed +
+EVAL_SEED_OFFSET``). The host loop also takes gymnasium vector envs with observation *dicts*
+(MJX: ``{"vector": float32 (D,)}``); :func:`env_spec` reads both kinds.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import numpy as np
 
 from vsgjax.config import EnvConfig
 from vsgjax.envs.wrappers import DefaultSeed
+from vsgjax.observations import IMAGE_DTYPE, VECTOR_DTYPE, ObsSpec, obs_spec
 
 TASK_PATTERNS = ("bbs_<variant>", "dmc_<domain>_<task>", "atari_<game>", "mjx_<domain>_<task>")
 DEVICE_FAMILIES = ("mjx",)  # tasks that step inside JAX (vsgjax/device_loop.py), not gymnasium
@@ -36,11 +40,20 @@ class TaskError(ValueError):
 
 
 class EnvSpec(NamedTuple):
-    """What the model needs to know about an env, as plain values."""
+    """What the model needs to know about an env, as plain values.
 
-    obs_shape: tuple[int, int, int]
+    ``obs_shape``: the image shape ``(H, W, C)`` of an image env, or the :class:`ObsSpec` of an
+    env with observation dicts (what ``Agent`` takes as ``obs_shape`` either way).
+    """
+
+    obs_shape: tuple[int, int, int] | ObsSpec
     action_dim: int
     discrete: bool
+
+    @property
+    def obs(self) -> ObsSpec:
+        """The observation spec (an image env's is ``{"image": (H, W, C)}``)."""
+        return obs_spec(self.obs_shape)
 
 
 def parse_task(task: str) -> tuple[str, tuple[str, ...]]:
@@ -96,18 +109,25 @@ def _parse_mjx(task: str, rest: str) -> tuple[str]:
 _PARSERS = {"bbs": _parse_bbs, "dmc": _parse_dmc, "atari": _parse_atari, "mjx": _parse_mjx}
 
 
-def make_env(env_cfg: EnvConfig, seed: int, *, eval: bool = False) -> gymnasium.Env:
-    """Build the env named by ``env_cfg.task``; its first ``reset()`` is seeded with ``seed``."""
+def check_env_config(env_cfg: EnvConfig) -> tuple[str, tuple[str, ...]]:
+    """The task's :func:`parse_task`; raises TaskError/ValueError naming a bad task or value."""
     if env_cfg.action_repeat < 1 or env_cfg.time_limit < 1 or env_cfg.image_size < 1:
         raise ValueError(f"action_repeat, time_limit and image_size must be >= 1, got "
                          f"{env_cfg.action_repeat}, {env_cfg.time_limit}, {env_cfg.image_size}")
     family, args = parse_task(env_cfg.task)
-    if family in DEVICE_FAMILIES:
-        raise TaskError(f"{env_cfg.task!r} steps on the device, not as a gymnasium env; it "
-                        "trains with the device loop (train.loop=device or auto)")
     if family != "atari" and (env_cfg.grayscale or env_cfg.sticky):
         raise ValueError(f"grayscale={env_cfg.grayscale} and sticky={env_cfg.sticky} are Atari "
                          f"options; task {env_cfg.task!r} needs grayscale=False and sticky=0")
+    return family, args
+
+
+def make_env(env_cfg: EnvConfig, seed: int, *, eval: bool = False) -> gymnasium.Env:
+    """Build the env named by ``env_cfg.task``; its first ``reset()`` is seeded with ``seed``."""
+    family, args = check_env_config(env_cfg)
+    if family in DEVICE_FAMILIES:
+        raise TaskError(f"{env_cfg.task!r} steps on the device, not as a gymnasium env; it "
+                        "trains with the device loop (train.loop=device or auto) or, through "
+                        "its vector env, the host loop (vsgjax.collect.make_env_batch)")
     seed = seed + EVAL_SEED_OFFSET if eval else seed
     env = _BUILDERS[family](args, env_cfg, seed)
     env = _normalize_actions(env)
@@ -152,11 +172,36 @@ def env_spec(env: gymnasium.Env | gymnasium.vector.VectorEnv) -> EnvSpec:
     """The plain (obs_shape, action_dim, discrete) of an env; raises if it breaks the contract."""
     obs_space = getattr(env, "single_observation_space", env.observation_space)
     act_space = getattr(env, "single_action_space", env.action_space)
-    if not (isinstance(obs_space, gymnasium.spaces.Box) and obs_space.dtype == np.uint8
-            and len(obs_space.shape) == 3):
-        raise TypeError(f"observation space must be a uint8 (H, W, C) Box, got {obs_space}")
+    obs_shape = _obs_shape(obs_space)
     if isinstance(act_space, gymnasium.spaces.Discrete):
-        return EnvSpec(tuple(obs_space.shape), int(act_space.n), True)
+        return EnvSpec(obs_shape, int(act_space.n), True)
     if isinstance(act_space, gymnasium.spaces.Box) and len(act_space.shape) == 1:
-        return EnvSpec(tuple(obs_space.shape), int(act_space.shape[0]), False)
+        return EnvSpec(obs_shape, int(act_space.shape[0]), False)
     raise TypeError(f"action space must be Discrete or a 1-d Box, got {act_space}")
+
+
+_OBS_CONTRACT = ("a uint8 (H, W, C) Box, or a Dict of observation keys (uint8 (H, W, C) "
+                 "images, float32 (D,) vectors)")
+
+
+def _obs_shape(space: gymnasium.Space) -> tuple[int, int, int] | ObsSpec:
+    """An image Box's shape, or the ObsSpec of a Dict space; TypeError otherwise."""
+    if _is_image(space):
+        return tuple(space.shape)
+    if isinstance(space, gymnasium.spaces.Dict) and all(
+            _is_image(s) or _is_vector(s) for s in space.spaces.values()):
+        try:
+            return ObsSpec.from_dict({key: s.shape for key, s in space.spaces.items()})
+        except ValueError as error:
+            raise TypeError(f"observation space {space}: {error}") from None
+    raise TypeError(f"observation space must be {_OBS_CONTRACT}, got {space}")
+
+
+def _is_image(space: gymnasium.Space) -> bool:
+    return (isinstance(space, gymnasium.spaces.Box) and space.dtype == IMAGE_DTYPE
+            and len(space.shape) == 3)
+
+
+def _is_vector(space: gymnasium.Space) -> bool:
+    return (isinstance(space, gymnasium.spaces.Box) and space.dtype == VECTOR_DTYPE
+            and len(space.shape) == 1)
