@@ -15,6 +15,26 @@ import gc  # noqa: E402
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
+BREAK_ACTOR_GRAD = os.environ.get("VSGJAX_BREAK_ACTOR_GRAD") == "1"
+
+
+@pytest.fixture
+def actor_learns(monkeypatch) -> bool:
+    """Whether the actor gets its gradient: with ``VSGJAX_BREAK_ACTOR_GRAD=1`` the actor's
+    loss is wrapped in ``stop_gradient`` (the actor never learns), and every learning test
+    that uses this fixture must then FAIL: that shows it measures learning."""
+    if BREAK_ACTOR_GRAD:
+        from vsgjax import behaviour
+
+        original = behaviour.actor_loss
+
+        def broken(actor_params, *args):
+            loss, aux = original(actor_params, *args)
+            return jax.lax.stop_gradient(loss), aux
+
+        monkeypatch.setattr(behaviour, "actor_loss", broken)
+    return not BREAK_ACTOR_GRAD
+
 
 @pytest.fixture(autouse=True, scope="module")
 def _free_compiled_programs():

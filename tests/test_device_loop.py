@@ -181,3 +181,36 @@ def test_device_run_writes_the_log_directory_then_resumes_after_sigkill(tmp_path
     assert steps == sorted(set(steps))
     # the device replay came back whole: the resumed run trained on it without prefilling again
     assert "prefill done" not in result.stdout
+
+
+@pytest.mark.slow
+def test_a_seeds_non_finite_update_stops_only_that_seed(tmp_path, capsys):
+    """Seed 1's updates of the first training call are NaN: seed 1 stops, seed 0 finishes."""
+    from vsgjax.device_train import DeviceTrainer
+
+    configs = [make_config(TASK, "vsg", "debug", [*SHORT, f"train.seed={seed}",
+                                                  "train.steps=240", "train.ckpt_every=4"])
+               for seed in (0, 1)]
+    trainer = DeviceTrainer(configs, [tmp_path / "a", tmp_path / "b"], progress=False,
+                            out=lambda *_: None)
+    real_episode = trainer._episode[True]
+
+    def poisoned(state):
+        state, metrics, records = real_episode(state)
+        return state, dict(metrics, **{"wm/loss": metrics["wm/loss"].at[1].set(jnp.nan)}), records
+
+    trainer._episode[True] = poisoned
+    try:
+        assert trainer.run() == 1
+    finally:
+        trainer.close()
+    err = capsys.readouterr().err
+    assert "seed 1: training stopped: non-finite metrics at update 3" in err  # 2 pretraining
+    assert "wm/loss=nan" in err and "the other seeds go on" in err
+    assert trainer.stopped == [1] and [run.seed for run in trainer.runs] == [0]
+    assert not checkpoint.list_checkpoints(tmp_path / "b" / "checkpoints")  # none after prefill
+    scores = json.loads((tmp_path / "a" / "scores.jsonl").read_text())
+    assert scores["xs"][-1] == 240  # 80 env steps per call
+    updates = [json.loads(line).get("train/updates")
+               for line in (tmp_path / "a" / "metrics.jsonl").read_text().splitlines()]
+    assert max(u for u in updates if u is not None) > 6  # seed 0 went on training

@@ -9,22 +9,20 @@ an oracle that moves straight to the target: it must close at least half of the 
 them. Measured (seed 0): VSG -16.3, random -42.6, oracle -1.9, threshold -22.3.
 
 Setting ``VSGJAX_BREAK_ACTOR_GRAD=1`` runs the same test with the actor's loss wrapped in
-``stop_gradient`` (the actor never learns); the test must then FAIL, which shows that it
-measures learning. Measured: -65.5 with the broken gradient, so it fails as it should.
+``stop_gradient`` (the actor never learns; the ``actor_learns`` fixture of conftest.py); the
+test must then FAIL, which shows that it measures learning. Measured: -65.5 with the broken
+gradient, so it fails as it should.
 """
 
 from __future__ import annotations
 
 import functools
 import json
-import os
 
 import gymnasium
-import jax
 import numpy as np
 import pytest
 
-from vsgjax import behaviour
 from vsgjax.collect import EnvBatch
 from vsgjax.config import make_config
 from vsgjax.envs.wrappers import DefaultSeed
@@ -38,7 +36,6 @@ SPEED = 0.12  # agent displacement per unit action, in arena units ([0, 1]^2)
 EPISODE = 20  # agent steps per episode
 EVAL_EPISODES = 3
 SEED = 0
-BREAK_ACTOR_GRAD = os.environ.get("VSGJAX_BREAK_ACTOR_GRAD") == "1"
 
 # Small VSG: debug-sized pieces, short sequences, fast learning rates; 600 updates.
 OVERRIDES = [
@@ -132,21 +129,8 @@ def test_reach_images_show_both_dots():
     assert x == round((0.5 + SPEED) * (SIZE - DOT))
 
 
-def stop_actor_gradient(monkeypatch):
-    """The broken variant: the actor loss's gradient is zero, so the actor never learns."""
-    original = behaviour.actor_loss
-
-    def broken(actor_params, *args):
-        loss, aux = original(actor_params, *args)
-        return jax.lax.stop_gradient(loss), aux
-
-    monkeypatch.setattr(behaviour, "actor_loss", broken)
-
-
 @pytest.mark.slow
-def test_vsg_learns_to_reach(tmp_path, monkeypatch):
-    if BREAK_ACTOR_GRAD:
-        stop_actor_gradient(monkeypatch)
+def test_vsg_learns_to_reach(tmp_path, actor_learns):
     config = make_config("dmc_reach", "vsg", "debug", OVERRIDES)
     trainer = Trainer(config, tmp_path, make_envs=reach_envs, progress=False)
     try:

@@ -5,12 +5,13 @@ seed; between calls this driver writes the same log directory as the host loop (
 metrics, scores, eval episodes, every episode as an MCAP file, checkpoints; no videos: the MJX
 tasks have no pixels), evaluates on the release's grid and checkpoints. The checkpoint holds the
 whole loop state (agent, device replay, PRNG key); the envs need none, since every call starts
-by resetting them. Resuming, SIGINT/SIGTERM and the NaN stop behave as in the host loop.
+by resetting them. Resuming, SIGINT/SIGTERM and the NaN stop behave as in the host loop: a seed
+whose update in a call is non-finite stops (that call's state of it is dropped, its last
+checkpoint stays) and the other seeds go on, recompiled for the seeds left.
 """
 
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from vsgjax.train import (
     group_label,
     next_on_grid,
     non_finite,
+    report_stop,
 )
 
 
@@ -55,21 +57,25 @@ class DeviceTrainer(LoopDriver):
         self.loop = DeviceLoop(self.config, task)
         self.loop.check()
         self.runs = [DeviceRun(c, d) for c, d in zip(configs, logdirs, strict=True)]
-        seeds = len(self.runs)
-        self._episode = {train: jax.jit(seed_batched(
-            lambda state, train=train: self.loop.episode(state, train), seeds))
-            for train in (False, True)}
-        self._pretrain = jax.jit(seed_batched(
-            lambda state: self.loop.pretrain(state, self.config.train.pretrain), seeds))
-        self._evaluate = jax.jit(seed_batched(
-            lambda params, key: self.loop.evaluate(params, key, self.config.train.eval_episodes),
-            seeds))
+        self.stopped: list[int] = []
+        self._compile(len(self.runs))
         self.state, self.counters, self.resumed = self._restore()
         for run in self.runs:
             run.open_logs(self.env_steps)
         self._update_replay_steps()
         self.progress = Progress(self.config.train.steps, self.env_steps, enabled=progress)
         self._started, self._start_steps = time.monotonic(), self.env_steps
+
+    def _compile(self, seeds: int) -> None:
+        """The jitted programs of ``seeds`` stacked seeds (again after seeds stop)."""
+        train = self.config.train
+        self._episode = {training: jax.jit(seed_batched(
+            lambda state, training=training: self.loop.episode(state, training), seeds))
+            for training in (False, True)}
+        self._pretrain = jax.jit(seed_batched(
+            lambda state: self.loop.pretrain(state, train.pretrain), seeds))
+        self._evaluate = jax.jit(seed_batched(
+            lambda params, key: self.loop.evaluate(params, key, train.eval_episodes), seeds))
 
     def _target(self, run: RunFiles) -> LoopState:
         return jax.eval_shape(self.loop.init, jax.random.PRNGKey(run.seed))
@@ -127,7 +133,8 @@ class DeviceTrainer(LoopDriver):
         records = jax.device_get(records)
         c.agent_steps += self.config.env.num_envs * self.loop.episode_steps
         if training:
-            self._take_metrics(jax.device_get(metrics), self.loop.updates_per_episode)
+            keep = self._take_metrics(jax.device_get(metrics), self.loop.updates_per_episode)
+            records = {k: v[keep] for k, v in records.items()}
         self._update_replay_steps()
         self._write_episodes(records)
         self.progress.update(self.env_steps)
@@ -148,20 +155,39 @@ class DeviceTrainer(LoopDriver):
             self.state, metrics = self._pretrain(self.state)
             self._take_metrics(jax.device_get(metrics), train.pretrain)
 
-    def _take_metrics(self, metrics: dict, updates: int) -> None:
-        """Check ``updates`` updates' metrics ``[S, U]`` of every seed; keep their means."""
+    def _take_metrics(self, metrics: dict, updates: int) -> list[int]:
+        """Check ``updates`` updates' metrics ``[S, U]`` of every seed and keep their means; a
+        seed with a non-finite one stops (its state of this call is dropped; the others go on).
+        Returns the indices of the seeds kept."""
+        keep, problems = [], []
         for i, run in enumerate(self.runs):
             seed_metrics = {k: np.asarray(v[i]) for k, v in metrics.items()}
-            for u in range(updates):
-                problem = non_finite({k: v[u] for k, v in seed_metrics.items()},
-                                     self.counters.updates + u + 1, self.env_steps)
-                if problem:
-                    print(f"error: seed {run.seed}: training stopped: {problem}; the "
-                          f"non-finite state was not saved; {run.last_good_checkpoint()}",
-                          file=sys.stderr, flush=True)
-                    raise NonFiniteLossError(problem)
-            run.window.append({k: float(v.mean()) for k, v in seed_metrics.items()})
+            problem = next(filter(None, (
+                non_finite({k: v[u] for k, v in seed_metrics.items()},
+                           self.counters.updates + u + 1, self.env_steps)
+                for u in range(updates))), None)
+            problems.append(problem)
+            if problem is None:
+                keep.append(i)
+                run.window.append({k: float(v.mean()) for k, v in seed_metrics.items()})
         self.counters.updates += updates
+        if len(keep) < len(self.runs):
+            self._stop_seeds(problems, keep)
+        return keep
+
+    def _stop_seeds(self, problems: list[str | None], keep: list[int]) -> None:
+        """Close the runs of the seeds with a problem; go on with ``keep`` (raise if none)."""
+        for run, problem in zip(self.runs, problems, strict=True):
+            if problem is not None:
+                self.stopped.append(run.seed)
+                report_stop(f"seed {run.seed}: " if len(self.runs) > 1 else "", run, problem,
+                            bool(keep))
+                run.close()
+        if not keep:
+            raise NonFiniteLossError(f"seeds {group_label(self.stopped)} stopped")
+        self.runs = [self.runs[i] for i in keep]
+        self.state = take(self.state, keep)
+        self._compile(len(keep))
 
     def _write_episodes(self, records: dict) -> None:
         """Every env's finished episode -> its seed's episodes/ and episode metrics."""

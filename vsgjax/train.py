@@ -409,6 +409,8 @@ class LoopDriver:
     """:meth:`run`: a trainer's ``iteration()`` to ``train.steps``, the final evaluation, the
     checkpoint on SIGINT/SIGTERM and at the end (the host and the device loop share it)."""
 
+    stopped: list[int]  # seeds stopped on non-finite metrics (the trainer sets it)
+
     def run(self) -> int:
         """Train to ``train.steps`` env steps; returns the process exit code."""
         train = self.config.train
@@ -428,7 +430,18 @@ class LoopDriver:
         return self.exit_code()
 
     def exit_code(self) -> int:
+        """1 when seeds stopped early on non-finite metrics (the others finished), else 0."""
+        if self.stopped:
+            self.out(f"seeds {group_label(self.stopped)} stopped early on non-finite metrics")
+            return 1
         return 0
+
+
+def report_stop(prefix: str, run: RunFiles, problem: str, others_go_on: bool) -> None:
+    """The error line of a seed stopped on non-finite metrics: what, and its last checkpoint."""
+    others = "; the other seeds go on" if others_go_on else ""
+    print(f"error: {prefix}training stopped: {problem}; the non-finite state was not saved; "
+          f"{run.last_good_checkpoint()}{others}", file=sys.stderr, flush=True)
 
 
 class Trainer(LoopDriver):
@@ -527,12 +540,6 @@ class Trainer(LoopDriver):
         return self.env_steps < self.config.train.prefill or any(
             run.replay.num_sequences == 0 for run in self.runs)
 
-    def exit_code(self) -> int:
-        if self.stopped:
-            self.out(f"seeds {group_label(self.stopped)} stopped early on non-finite metrics")
-            return 1
-        return 0
-
     def iteration(self) -> None:
         """One pass of the loop: a chunk of collection, the updates due, logs, eval, checkpoint."""
         self.collect()
@@ -605,10 +612,7 @@ class Trainer(LoopDriver):
         for run, problem in zip(self.runs, problems, strict=True):
             if problem is not None:
                 self.stopped.append(run.seed)
-                others = "; the other seeds go on" if keep else ""
-                print(f"error: {self._prefix(run)}training stopped: {problem}; the non-finite "
-                      f"state was not saved; {run.last_good_checkpoint()}{others}",
-                      file=sys.stderr, flush=True)
+                report_stop(self._prefix(run), run, problem, bool(keep))
                 run.close()
         if not keep:
             raise NonFiniteLossError(f"seeds {group_label(self.stopped)} stopped")
