@@ -42,7 +42,7 @@ from vsgjax.train import enable_compilation_cache, make_trainer
 
 TASK, MODEL = "mjx_cartpole_swingup", "vsg"
 LOOPS = ("device", "host")
-WINDOW_CALLS, REPEATS, HOST_WARM_UPDATES = 2, 3, 3
+WINDOW_CALLS, REPEATS, HOST_WARM_UPDATES = 1, 3, 3
 OFF = ["train.eval_every=1000000000", "train.video_every=1000000000",
        "train.ckpt_every=1000000000", "train.steps=1000000000"]
 SMOKE = ["env.time_limit=40", "env.num_envs=2", "train.length=8", "train.batch=3",
