@@ -24,6 +24,7 @@ from vsgjax.config import ConfigError, make_config
 from vsgjax.device_loop import VECTOR_KEY, DeviceLoop, Replay
 from vsgjax.envs import TaskError
 from vsgjax.envs.mjx import make_mjx_task
+from vsgjax.evaluate import evaluate_logdir
 
 ROOT = Path(__file__).resolve().parents[1]
 TASK = "mjx_cartpole_balance"
@@ -181,6 +182,9 @@ def test_device_run_writes_the_log_directory_then_resumes_after_sigkill(tmp_path
     assert steps == sorted(set(steps))
     # the device replay came back whole: the resumed run trained on it without prefilling again
     assert "prefill done" not in result.stdout
+    # python -m vsgjax.evaluate reads the loop state's agent from the device checkpoint
+    infos, step = evaluate_logdir(tmp_path, episodes=1)
+    assert step == killed_at + 160 and len(infos) == 1 and np.isfinite(infos[0]["return"])
 
 
 @pytest.mark.slow

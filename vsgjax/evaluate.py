@@ -31,7 +31,7 @@ from vsgjax import checkpoint
 from vsgjax.agent import Agent, AgentState
 from vsgjax.collect import Collector, EnvBatch, make_env_batch, random_policy
 from vsgjax.config import Config, from_dict
-from vsgjax.envs import EnvSpec
+from vsgjax.envs import EnvSpec, resolve_loop
 
 EVAL_CHUNK = 50  # agent steps per collection call while evaluating
 
@@ -63,9 +63,26 @@ def checkpoint_tree(state: AgentState, key: jax.Array) -> dict:
 def restore_latest(ckpt_dir: Path, agent: Agent, key: jax.Array,
                    max_step: int | None = None) -> checkpoint.Checkpoint | None:
     """The newest readable checkpoint (of a step up to ``max_step``, if given) filled into the
-    agent's structure, or None."""
+    agent's structure, or None. A device-loop run's checkpoint holds its whole loop state
+    (agent, device replay, key): its tree is given as ``{"agent", "key"}`` too."""
+    if resolve_loop(agent.config) == "device":
+        return _restore_device_run(ckpt_dir, agent, key, max_step)
     target = checkpoint_tree(jax.eval_shape(agent.init, key), key)  # shapes only, no compute
     return checkpoint.restore(ckpt_dir, target, max_step)
+
+
+def _restore_device_run(ckpt_dir: Path, agent: Agent, key: jax.Array,
+                        max_step: int | None) -> checkpoint.Checkpoint | None:
+    from vsgjax.device_loop import DeviceLoop
+    from vsgjax.envs.mjx import make_mjx_task
+
+    env = agent.config.env
+    loop = DeviceLoop(agent.config, make_mjx_task(env.task, env.action_repeat, env.time_limit))
+    restored = checkpoint.restore(ckpt_dir, {"loop": jax.eval_shape(loop.init, key)}, max_step)
+    if restored is None:
+        return None
+    state = restored.tree["loop"]
+    return restored._replace(tree=checkpoint_tree(state.agent, state.key))
 
 
 class Evaluator:

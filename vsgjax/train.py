@@ -56,7 +56,7 @@ from vsgjax.config import (
     make_config,
     to_dict,
 )
-from vsgjax.envs import DEVICE_FAMILIES, TaskError, parse_task
+from vsgjax.envs import TaskError, parse_task, resolve_loop
 from vsgjax.evaluate import (
     Evaluator,
     acting_policy,
@@ -706,22 +706,6 @@ def _json_safe(record: dict) -> dict:
     """NaN/inf (e.g. 'never visited' discovery metrics) become null in JSON files."""
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
             for k, v in record.items()}
-
-
-def resolve_loop(config: Config) -> str:
-    """``host`` or ``device`` for ``train.loop`` (``auto``: device for tasks that step in JAX,
-    which the host loop drives too, through their vector env); raises ConfigError for the
-    device loop on a host task."""
-    task, loop = config.env.task, config.train.loop
-    on_device = parse_task(task)[0] in DEVICE_FAMILIES
-    if loop == "auto":
-        return "device" if on_device else "host"
-    if loop == "device" and not on_device:
-        raise ConfigError("train.loop=device needs a task that steps inside JAX ("
-                          + ", ".join(f"{f}_*" for f in DEVICE_FAMILIES) + f"); {task!r} is a "
-                          "host environment (gymnasium, stepped in Python): use train.loop=host "
-                          "or auto")
-    return loop
 
 
 def make_trainer(configs: list[Config], logdirs: list[Path], *, progress: bool = True):

@@ -1,7 +1,7 @@
 """The whole training loop on an MJX task: the device loop against the host loop.
 
-Both loops train the same VSG (``small``; ``--size debug`` for the debug size) with the same
-config on ``mjx_cartpole_swingup``; only ``train.loop`` differs:
+Both loops train the same VSG (``small`` and ``debug``; ``--sizes`` picks) with the same config
+on ``mjx_cartpole_swingup``; only ``train.loop`` differs:
 
 * ``device``: one jitted call per episode of every env (policy, MJX steps, replay, updates);
 * ``host``: the host loop driving the same MJX envs through ``vsgjax/envs/mjx/host.py`` (one
@@ -17,7 +17,7 @@ at the end of prefill, in the warm-up), videos and checkpoints are off; episode 
 are written as in training. The host loop's count includes its one reset step per episode
 (gymnasium's NEXT_STEP autoreset).
 
-    python -m experiments.bench.bench_mjx_loop [--size small|debug] [--smoke]
+    python -m experiments.bench.bench_mjx_loop [--sizes small debug] [--smoke]
 
 ``--smoke`` times one short window at the debug size with 40-step episodes and writes nothing
 (its warm-up, mostly compilation, takes minutes on 2 cores).
@@ -124,17 +124,21 @@ def markdown(rows: list[dict], size: str, calls: int, window: int, repeats: int)
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m experiments.bench.bench_mjx_loop",
                                      description=__doc__.split("\n")[0])
-    parser.add_argument("--size", default="small", choices=("small", "debug"))
+    parser.add_argument("--sizes", nargs="+", default=["small", "debug"],
+                        choices=("small", "debug"))
     parser.add_argument("--smoke", action="store_true",
                         help="one short window (debug size, short episodes); writes nothing")
     args = parser.parse_args(argv or [])
-    size = "debug" if args.smoke else args.size
+    sizes = ["debug"] if args.smoke else args.sizes
     overrides = SMOKE if args.smoke else []
     repeats, calls = (1, 1) if args.smoke else (REPEATS, WINDOW_CALLS)
-    window = window_steps(size, overrides, calls)
     enable_compilation_cache()  # compilation is reported (warm-up), never timed
-    rows = [bench_loop(loop, size, overrides, window, repeats) for loop in LOOPS]
-    text = markdown(rows, size, calls, window, repeats)
+    sections = []
+    for size in sizes:
+        window = window_steps(size, overrides, calls)
+        rows = [bench_loop(loop, size, overrides, window, repeats) for loop in LOOPS]
+        sections.append(markdown(rows, size, calls, window, repeats))
+    text = "\n".join(sections)
     if not args.smoke:
         RESULTS.parent.mkdir(parents=True, exist_ok=True)
         RESULTS.write_text(text)

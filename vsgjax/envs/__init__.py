@@ -26,7 +26,7 @@ from typing import NamedTuple
 import gymnasium
 import numpy as np
 
-from vsgjax.config import EnvConfig
+from vsgjax.config import Config, ConfigError, EnvConfig
 from vsgjax.envs.wrappers import DefaultSeed
 from vsgjax.observations import IMAGE_DTYPE, VECTOR_DTYPE, ObsSpec, obs_spec
 
@@ -205,3 +205,19 @@ def _is_image(space: gymnasium.Space) -> bool:
 def _is_vector(space: gymnasium.Space) -> bool:
     return (isinstance(space, gymnasium.spaces.Box) and space.dtype == VECTOR_DTYPE
             and len(space.shape) == 1)
+
+
+def resolve_loop(config: Config) -> str:
+    """``host`` or ``device`` for ``train.loop`` (``auto``: device for tasks that step in JAX,
+    which the host loop drives too, through their vector env); raises ConfigError for the
+    device loop on a host task."""
+    task, loop = config.env.task, config.train.loop
+    on_device = parse_task(task)[0] in DEVICE_FAMILIES
+    if loop == "auto":
+        return "device" if on_device else "host"
+    if loop == "device" and not on_device:
+        raise ConfigError("train.loop=device needs a task that steps inside JAX ("
+                          + ", ".join(f"{f}_*" for f in DEVICE_FAMILIES) + f"); {task!r} is a "
+                          "host environment (gymnasium, stepped in Python): use train.loop=host "
+                          "or auto")
+    return loop
