@@ -212,7 +212,8 @@ def resolve_loop(config: Config) -> str:
     which the host loop drives too, through their vector env); raises ConfigError for the
     device loop on a host task."""
     task, loop = config.env.task, config.train.loop
-    on_device = parse_task(task)[0] in DEVICE_FAMILIES
+    on_device = task.partition("_")[0] in DEVICE_FAMILIES  # the family; the name is checked
+    # where the env is made (a test's own task names, e.g. dmc_reach, are host tasks)
     if loop == "auto":
         return "device" if on_device else "host"
     if loop == "device" and not on_device:
