@@ -27,13 +27,11 @@ from vsgjax.parallel import seed_batched, stack, take
 from vsgjax.train import (
     Counters,
     LoopDriver,
-    NonFiniteLossError,
     RunFiles,
     check_seed_group,
     group_label,
     next_on_grid,
     non_finite,
-    report_stop,
 )
 
 
@@ -159,7 +157,7 @@ class DeviceTrainer(LoopDriver):
         """Check ``updates`` updates' metrics ``[S, U]`` of every seed and keep their means; a
         seed with a non-finite one stops (its state of this call is dropped; the others go on).
         Returns the indices of the seeds kept."""
-        keep, problems = [], []
+        problems = []
         for i, run in enumerate(self.runs):
             seed_metrics = {k: np.asarray(v[i]) for k, v in metrics.items()}
             problem = next(filter(None, (
@@ -168,26 +166,14 @@ class DeviceTrainer(LoopDriver):
                 for u in range(updates))), None)
             problems.append(problem)
             if problem is None:
-                keep.append(i)
                 run.window.append({k: float(v.mean()) for k, v in seed_metrics.items()})
         self.counters.updates += updates
-        if len(keep) < len(self.runs):
-            self._stop_seeds(problems, keep)
-        return keep
-
-    def _stop_seeds(self, problems: list[str | None], keep: list[int]) -> None:
-        """Close the runs of the seeds with a problem; go on with ``keep`` (raise if none)."""
-        for run, problem in zip(self.runs, problems, strict=True):
-            if problem is not None:
-                self.stopped.append(run.seed)
-                report_stop(f"seed {run.seed}: " if len(self.runs) > 1 else "", run, problem,
-                            bool(keep))
-                run.close()
-        if not keep:
-            raise NonFiniteLossError(f"seeds {group_label(self.stopped)} stopped")
-        self.runs = [self.runs[i] for i in keep]
+        if not any(problems):
+            return list(range(len(problems)))
+        keep = self._stop_runs(problems)
         self.state = take(self.state, keep)
         self._compile(len(keep))
+        return keep
 
     def _write_episodes(self, records: dict) -> None:
         """Every env's finished episode -> its seed's episodes/ and episode metrics."""

@@ -436,12 +436,27 @@ class LoopDriver:
             return 1
         return 0
 
+    def _prefix(self, run: RunFiles) -> str:
+        """``seed k: `` before a message about one seed, when a run has several."""
+        return f"seed {run.seed}: " if len(self.runs) > 1 or self.stopped else ""
 
-def report_stop(prefix: str, run: RunFiles, problem: str, others_go_on: bool) -> None:
-    """The error line of a seed stopped on non-finite metrics: what, and its last checkpoint."""
-    others = "; the other seeds go on" if others_go_on else ""
-    print(f"error: {prefix}training stopped: {problem}; the non-finite state was not saved; "
-          f"{run.last_good_checkpoint()}{others}", file=sys.stderr, flush=True)
+    def _stop_runs(self, problems: list[str | None]) -> list[int]:
+        """Report and close the runs whose problem (a non-finite update) is not None and keep
+        the others in ``self.runs``; returns their indices. Raises NonFiniteLossError when
+        none is left."""
+        keep = [i for i, problem in enumerate(problems) if problem is None]
+        others = "; the other seeds go on" if keep else ""
+        for run, problem in zip(self.runs, problems, strict=True):
+            if problem is not None:
+                self.stopped.append(run.seed)
+                print(f"error: {self._prefix(run)}training stopped: {problem}; the non-finite "
+                      f"state was not saved; {run.last_good_checkpoint()}{others}",
+                      file=sys.stderr, flush=True)
+                run.close()
+        if not keep:
+            raise NonFiniteLossError(f"seeds {group_label(self.stopped)} stopped")
+        self.runs = [self.runs[i] for i in keep]
+        return keep
 
 
 class Trainer(LoopDriver):
@@ -504,10 +519,6 @@ class Trainer(LoopDriver):
     @property
     def seeds(self) -> list[int]:
         return [run.seed for run in self.runs]
-
-    def _prefix(self, run: SeedRun) -> str:
-        """``seed k: `` before a message about one seed, when a run has several."""
-        return f"seed {run.seed}: " if len(self.runs) > 1 or self.stopped else ""
 
     def describe(self) -> str:
         """Whether this run resumes, and from where."""
@@ -608,15 +619,7 @@ class Trainer(LoopDriver):
     def _stop_seeds(self, problems: list[str | None], per_seed: list[dict]) -> list[dict]:
         """Stop the seeds whose update was non-finite (their state is not kept); the others go
         on. Raises NonFiniteLossError when none is left. Returns the metrics of those kept."""
-        keep = [i for i, problem in enumerate(problems) if problem is None]
-        for run, problem in zip(self.runs, problems, strict=True):
-            if problem is not None:
-                self.stopped.append(run.seed)
-                report_stop(self._prefix(run), run, problem, bool(keep))
-                run.close()
-        if not keep:
-            raise NonFiniteLossError(f"seeds {group_label(self.stopped)} stopped")
-        self.runs = [self.runs[i] for i in keep]
+        keep = self._stop_runs(problems)
         self.collector.drop_seeds(keep)
         try:
             self.parallel = Parallel(self.agent, len(keep), self.devices)
