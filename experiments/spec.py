@@ -1,31 +1,10 @@
 """The paper's experiments as data: ``experiments/paper/<name>.toml`` -> runs and figures.
 
-An experiment file lists groups of runs and the figures or tables they feed::
-
-    description = "Figure 3b: ..."
-    reference = "vsg_paper_bbs.json"          # the paper's curves (experiments/reference_scores/)
-    steps = 2_500_000                         # train.steps of every run (env steps)
-    seeds = 5                                 # seeds 0 .. seeds-1
-    [[groups]]                                # one or more; every task x model x seed is a run
-    tasks = ["bbs_basic"]
-    models = ["dreamerv2", "vsg", "svsg"]
-    variant = ""                              # optional: an ablation's name ("nosparsity")
-    method = ""                               # optional: its label ("VSG-NoSparsityLoss")
-    overrides = []                            # optional: config overrides of the group
-    steps = 1_000_000                         # optional: the group's train.steps (default: the
-                                              # experiment's; --steps overrides both)
-    [[figures]]                               # what experiments.report draws
-    kind = "bars"
-    at = [1_000_000, 2_500_000]
-
-An experiment may instead evaluate another experiment's trained runs (``source = "bbs_grid"``
-with ``episodes = 50``: the discovery table) or draw from one (``kind = "rollouts"``): its runs
-are then the source's runs that match its groups, and its jobs evaluate rather than train.
-
-``load_experiment(name, size=, seeds=, steps=)`` applies the launcher's ``--size``,
-``--seeds`` and ``--steps`` overrides, so ``--size debug --seeds 2 --steps 5000`` is a version
-of any experiment that runs on a laptop. Every run has one log directory,
-``<root>/<experiment>/<task>/<model>[-<variant>]/s<seed>``.
+An experiment lists ``[[groups]]`` of runs (every task x model x seed of a group is one run) and
+the ``[[figures]]`` they feed, or evaluates / draws from another experiment's trained runs
+(``source``). ``load_experiment`` applies the launcher's ``--size``, ``--seeds`` and ``--steps``.
+Every run has one log directory, ``<root>/<experiment>/<task>/<model>[-<variant>]/s<seed>``.
+The file format is in docs/experiments.md.
 """
 
 from __future__ import annotations
@@ -38,8 +17,11 @@ from pathlib import Path
 
 from vsgjax.config import MODELS, SIZES, ConfigError, make_config
 from vsgjax.envs import TaskError, parse_task
-from vsgjax.train import METHOD_NAMES
 
+# Each model's name in figures and tables: the reference scores' names, the ones the trainer
+# writes into scores.jsonl (tests/experiments/test_report.py checks that the two agree).
+METHOD_NAMES = {"dreamerv1": "DreamerV1", "dreamerv2": "DreamerV2", "vsg": "VSG",
+                "svsg": "SVSG", "ssm": "SSM"}
 PAPER_DIR = Path(__file__).resolve().parent / "paper"
 DEFAULT_ROOT = Path("runs")
 EVALUATION_FILE = "evaluation.jsonl"  # an evaluate job's episodes, one JSON object per line
@@ -117,7 +99,7 @@ class Run:
 
 @dataclass(frozen=True)
 class Experiment:
-    """An experiment: its runs and the figures they feed (see the module docstring)."""
+    """An experiment: its runs and the figures they feed (see docs/experiments.md)."""
 
     name: str
     description: str
