@@ -1,4 +1,4 @@
-"""experiments/report.py on synthetic run directories (no training): the data behind every
+"""experiments.report on synthetic run directories (no training): the data behind every
 figure, the paper's curves and numbers beside ours, missing runs, corrupt lines, files."""
 
 import json
@@ -9,7 +9,8 @@ import pytest
 
 from experiments import report
 from experiments.report import REFERENCE_DIR, Context, ReportWarning
-from experiments.spec import load_experiment
+from experiments.spec import METHOD_NAMES, load_experiment
+from vsgjax.train import METHOD_NAMES as TRAINER_METHOD_NAMES
 
 BBS_REFERENCE = json.loads((REFERENCE_DIR / "vsg_paper_bbs.json").read_text())
 DISCOVERY_REFERENCE = json.loads((REFERENCE_DIR / "vsg_paper_discovery.json").read_text())
@@ -51,6 +52,10 @@ def test_names_map_to_the_reference_files():
         "bringbackshapes_sparse_distract0_size1.0", "VSGC")
     assert len(reference.seeds("bbs_medium_d4", "SVSG")) == 5
     assert report.load_reference("vsg_paper_dmc.json").spacing == 50_000
+
+
+def test_method_names_are_the_ones_the_trainer_writes():
+    assert METHOD_NAMES == TRAINER_METHOD_NAMES
 
 
 def test_binning_rule():
@@ -128,11 +133,11 @@ def test_corrupt_lines_are_skipped_with_a_warning(tmp_path):
     run = experiment.runs[0]
     path = write_scores(run, tmp_path, [100_000, 200_000], [1, 2])
     path.write_text(path.read_text() + '{"task": "bbs_basic", "xs": [1, 2\n')  # torn write
-    files = report.RunFiles(tmp_path)
+    records = report.RunRecords(tmp_path)
     with pytest.warns(ReportWarning, match=r"scores\.jsonl:2: skipped a corrupt line"):
-        curve = files.scores(run)
+        curve = records.scores(run)
     assert list(curve.xs) == [100_000, 200_000] and list(curve.ys) == [1, 2]
-    assert any(str(path) + ":2" in problem for problem in files.problems)
+    assert any(str(path) + ":2" in problem for problem in records.problems)
 
     lines = ['{"step": 10, "return": 1.0}', "not json", "[1, 2]", '{"step": 10, "return": 3.0}']
     episodes = tmp_path / "eval_episodes.jsonl"
@@ -154,7 +159,7 @@ def test_scores_rebuilt_from_eval_episodes_when_scores_file_is_absent(tmp_path):
             {"step": 200_000, "episode": 0, "return": 4.0}]
     (logdir / "eval_episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     with pytest.warns(ReportWarning, match="rebuilt them from"):
-        curve = report.RunFiles(tmp_path).scores(run)
+        curve = report.RunRecords(tmp_path).scores(run)
     assert list(curve.xs) == [100_000, 200_000] and list(curve.ys) == [2.0, 4.0]
 
 
