@@ -25,7 +25,7 @@ from experiments.spec import EVALUATION_FILE, load_experiment
 from vsgjax import evaluate
 from vsgjax.config import make_config, to_dict
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT = 600
 OVERRIDES = '["env.time_limit=200", "train.ckpt_every=2"]'  # 51-step episodes, many checkpoints
 SHORT, LONG = 400, 4000
@@ -276,7 +276,7 @@ def test_slurm_backend_via_submitit_local_requeues_on_preemption_and_finishes(
 
 
 def test_slurm_without_submitit_names_the_extra(definitions, tmp_path, monkeypatch, capsys):
-    monkeypatch.setattr(launch, "_Checkpointable", object)
+    monkeypatch.setattr(launch.slurm, "_Checkpointable", object)
     assert launch.main(launch_args("one", definitions, tmp_path, "--backend", "slurm")) == 2
     assert 'pip install -e ".[slurm]"' in capsys.readouterr().err
     monkeypatch.setitem(sys.modules, "submitit", None)  # import submitit -> ImportError

@@ -1,0 +1,5 @@
+import sys
+
+from experiments.launch.cli import main
+
+sys.exit(main())

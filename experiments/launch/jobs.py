@@ -1,0 +1,87 @@
+"""An experiment's jobs: one command per run (train it, evaluate it, or draw its rollouts)."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from experiments.spec import EVALUATION_FILE, Experiment, Run
+
+REPO = Path(__file__).resolve().parents[2]  # the directory every job runs in
+LOG_FILE = "launch.log"  # a job's stdout and stderr, appended by every launch
+DONE_FILE = "launch.done"  # written when a rollouts job exits 0 (its "finished" marker)
+
+
+class LaunchError(ValueError):
+    """Bad launcher input; the message names the value and lists the valid ones."""
+
+
+@dataclass(frozen=True)
+class Job:
+    """One command of an experiment: train a run, evaluate it, or draw its rollouts."""
+
+    index: int
+    experiment: Experiment
+    run: Run
+    root: Path
+
+    @property
+    def kind(self) -> str:
+        return self.experiment.kind
+
+    @property
+    def name(self) -> str:
+        return f"{self.run.task}/{self.run.method_dir}/s{self.run.seed}"
+
+    @property
+    def job_dir(self) -> Path:
+        return self.experiment.job_dir(self.run, self.root)
+
+    @property
+    def source_dir(self) -> Path:
+        """The training run's log directory (the job's own for a training job)."""
+        return self.run.logdir(self.root)
+
+    @property
+    def output(self) -> Path | None:
+        """The file whose existence means an evaluate job is finished."""
+        return self.job_dir / EVALUATION_FILE if self.kind == "evaluate" else None
+
+    @property
+    def log(self) -> Path:
+        return self.job_dir / LOG_FILE
+
+    @property
+    def done_marker(self) -> Path | None:
+        return self.job_dir / DONE_FILE if self.kind == "rollouts" else None
+
+    def command(self, python: str = sys.executable) -> list[str]:
+        if self.kind == "train":
+            return self.run.train_command(self.root, python)
+        if self.kind == "evaluate":
+            return [python, "-m", "vsgjax.evaluate", str(self.source_dir), "--episodes",
+                    str(self.experiment.episodes), "--output", str(self.output)]
+        return [python, "-m", "experiments.rollouts", str(self.source_dir), "--out",
+                str(self.job_dir)]
+
+
+def make_jobs(experiment: Experiment, root: Path, tasks: Sequence[str] = (),
+              models: Sequence[str] = ()) -> list[Job]:
+    """The experiment's jobs, optionally only those of some tasks / models (``--task/--model``)."""
+    for what, wanted, valid in (("task", tasks, experiment.tasks),
+                                ("model", models, _models(experiment))):
+        unknown = [value for value in wanted if value not in valid]
+        if unknown:
+            raise LaunchError(f"unknown {what} {unknown[0]!r} for experiment "
+                              f"{experiment.name!r}; valid: {', '.join(valid)}")
+    runs = [run for run in experiment.runs if (not tasks or run.task in tasks)
+            and (not models or run.model in models or run.method_dir in models)]
+    return [Job(index, experiment, run, Path(root)) for index, run in enumerate(runs)]
+
+
+def _models(experiment: Experiment) -> list[str]:
+    """Model names and model-variant names (``vsg-nosparsity``) a ``--model`` may name."""
+    names = [run.model for run in experiment.runs] + [run.method_dir for run in experiment.runs]
+    return list(dict.fromkeys(names))
