@@ -26,7 +26,7 @@ PAPER_DIR = Path(__file__).resolve().parent / "paper"
 DEFAULT_ROOT = Path("runs")
 EVALUATION_FILE = "evaluation.jsonl"  # an evaluate job's episodes, one JSON object per line
 KINDS = ("train", "evaluate", "rollouts")
-_TOP_KEYS = {"description", "reference", "steps", "seeds", "groups", "figures", "source",
+_TOP_KEYS = {"description", "reference", "size", "steps", "seeds", "groups", "figures", "source",
              "episodes", "kind"}
 _GROUP_KEYS = {"tasks", "models", "variant", "method", "overrides", "steps"}
 
@@ -39,7 +39,8 @@ def add_selection_arguments(parser: argparse.ArgumentParser) -> None:
     """The options that pick an experiment's runs, shared by the launcher and the report:
     ``NAME --size --seeds --steps --definitions --root``."""
     parser.add_argument("name", help="an experiment of --definitions (e.g. bbs_basic)")
-    parser.add_argument("--size", default="paper", help="paper, small or debug (default: paper)")
+    parser.add_argument("--size", default=None,
+                        help=f"{', '.join(SIZES)} (default: the experiment's size, else paper)")
     parser.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 of every run")
     parser.add_argument("--steps", type=int, default=None, help="train.steps of every run")
     parser.add_argument("--definitions", type=Path, default=PAPER_DIR,
@@ -127,17 +128,18 @@ class Experiment:
         return list(dict.fromkeys(run.method for run in self.runs))
 
 
-def load_experiment(name: str, size: str = "paper", seeds: int | None = None,
+def load_experiment(name: str, size: str | None = None, seeds: int | None = None,
                     steps: int | None = None, paper_dir: Path = PAPER_DIR) -> Experiment:
     """The experiment ``name`` (a file in ``paper_dir``) with the launcher's overrides applied.
 
-    ``seeds``: use seeds 0..seeds-1 instead of the file's; ``steps``: every run's
-    ``train.steps``. Raises :class:`ExperimentError` naming a bad value and the valid ones.
+    ``size``: every run's size instead of the file's ``size`` (default ``paper``); ``seeds``:
+    use seeds 0..seeds-1 instead of the file's; ``steps``: every run's ``train.steps``. Raises
+    :class:`ExperimentError` naming a bad value and the valid ones.
     """
     valid = experiment_names(paper_dir)
     if name not in valid:
         raise ExperimentError(f"unknown experiment {name!r}; valid: {', '.join(valid)}")
-    if size not in SIZES:
+    if size is not None and size not in SIZES:
         raise ExperimentError(f"unknown size {size!r}; valid: {', '.join(SIZES)}")
     for what, value in (("seeds", seeds), ("steps", steps)):
         if value is not None and value < 1:
@@ -148,6 +150,10 @@ def load_experiment(name: str, size: str = "paper", seeds: int | None = None,
     except tomllib.TOMLDecodeError as error:
         raise ExperimentError(f"{path}: {error}") from None
     _check_keys(path, "top level", data, _TOP_KEYS)
+    if size is None:
+        size = data.get("size", "paper")
+        if size not in SIZES:
+            raise ExperimentError(f"{path}: unknown size {size!r}; valid: {', '.join(SIZES)}")
     kind = data.get("kind", "evaluate" if "source" in data else "train")
     if kind not in KINDS:
         raise ExperimentError(f"{path}: unknown kind {kind!r}; valid: {', '.join(KINDS)}")

@@ -130,7 +130,8 @@ def _exit_code(statuses: dict[int, Status]) -> int:
 
 
 def _rebuild_flags(args: argparse.Namespace) -> str:
-    flags = [f"--size {args.size}", f"--root {shlex.quote(str(args.root))}"]
+    flags = [f"--size {args.size}"] if args.size else []
+    flags += [f"--root {shlex.quote(str(args.root))}"]
     flags += [f"--seeds {args.seeds}"] if args.seeds else []
     flags += [f"--steps {args.steps}"] if args.steps else []
     flags += [f"--definitions {shlex.quote(str(args.definitions))}"] if \

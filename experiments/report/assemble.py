@@ -21,6 +21,7 @@ from experiments.report.rollouts import rollouts_data, rollouts_markdown
 from experiments.report.runs import run_name, warn
 from experiments.report.style import relative, step_label
 from experiments.report.summary import draw_summary, summary_data, summary_markdown
+from experiments.report.versus import draw_versus, versus_data, versus_markdown
 from experiments.rundir import SCORES_FILE
 from experiments.spec import DEFAULT_ROOT, Experiment, Run
 
@@ -93,6 +94,12 @@ def section(context: Context, kind: str, name: str, figure: dict, out: Path) -> 
         data = summary_data(context)
         files = draw_summary(data, stem, context.experiment.methods)
         return Section(kind, name, data, files, summary_markdown(data))
+    if kind == "versus":
+        data = versus_data(context, figure.get("at", ()), figure.get("budget_minutes"))
+        table = versus_markdown(data)
+        files = draw_versus(data, stem) + [stem.with_suffix(".md")]
+        files[-1].write_text(table + "\n")
+        return Section(kind, name, data, files, table)
     if kind == "rollouts":
         data = rollouts_data(context)
         return Section(kind, name, data, [], rollouts_markdown(data, out))

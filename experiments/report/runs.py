@@ -52,21 +52,29 @@ def is_number(value) -> bool:
 
 @dataclass
 class Curve:
-    """One seed's evaluations: env steps and mean evaluation returns."""
+    """One seed's evaluations: env steps, mean evaluation returns and, where the run recorded
+    them, its wall seconds at each evaluation."""
 
     xs: np.ndarray
     ys: np.ndarray
     seed: str = ""
+    wall: np.ndarray | None = None
 
 
 def scores_record(record: dict, seed: str) -> Curve | None:
-    """The curve of a ``{xs, ys}`` record (its non-numbers dropped); None if it has none."""
+    """The curve of a ``{xs, ys[, wall_s]}`` record (its non-numbers dropped); None if it has
+    none. ``wall_s`` is read only when every entry is a number beside a kept evaluation."""
     xs, ys = record.get("xs"), record.get("ys")
     if not isinstance(xs, list) or not isinstance(ys, list) or len(xs) != len(ys):
         return None
-    pairs = [(float(x), float(y)) for x, y in zip(xs, ys, strict=True)
-             if is_number(x) and is_number(y)]
-    return Curve(np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs]), seed)
+    walls = record.get("wall_s")
+    if not isinstance(walls, list) or len(walls) != len(xs):
+        walls = [None] * len(xs)
+    rows = [(float(x), float(y), w) for x, y, w in zip(xs, ys, walls, strict=True)
+            if is_number(x) and is_number(y)]
+    wall = [w for _, _, w in rows]
+    return Curve(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), seed,
+                 np.array(wall, dtype=float) if rows and all(map(is_number, wall)) else None)
 
 
 def run_name(run: Run) -> str:
