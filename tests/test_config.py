@@ -137,7 +137,7 @@ def test_baselines_use_layernorm_gru_and_vsg_does_not():
 @pytest.mark.parametrize("model", MODELS)
 @pytest.mark.parametrize("size", SIZES)
 def test_every_preset_resolves_and_round_trips(model, size):
-    config = make_config("bbs_basic", model, size)
+    config = make_config("mjx_walker_walk" if size == "cpu" else "bbs_basic", model, size)
     assert config.model.name == model and config.size == size
     assert from_dict(to_dict(config)) == config
     hash(config)
@@ -147,6 +147,21 @@ def test_sizes_shrink_the_networks():
     paper, small, debug = (make_config("bbs_basic", "vsg", s) for s in ("paper", "small", "debug"))
     assert paper.model.deter > small.model.deter > debug.model.deter
     assert paper.wm.cnn_depth > small.wm.cnn_depth > debug.wm.cnn_depth
+
+
+@pytest.mark.parametrize("task", ["bbs_basic", "dmc_walker_walk", "atari_pong"])
+def test_the_cpu_size_refuses_image_tasks_naming_size_task_and_what_is_valid(task):
+    with pytest.raises(ConfigError) as error:
+        make_config(task, "vsg", "cpu")
+    message = str(error.value)
+    assert "'cpu'" in message and repr(task) in message and "mjx_<domain>_<task>" in message
+    assert "paper, small, debug" in message
+
+
+def test_the_cpu_size_trains_vector_tasks_with_the_mlp_encoder():
+    config = make_config("mjx_cheetah_run", "vsg", "cpu")
+    assert (config.model.deter, config.wm.mlp_units, config.train.steps) == (128, 128, 100_000)
+    assert config.wm.encoder == "auto" and config.ac.horizon == 15  # the release's horizon
 
 
 def test_from_dict_rejects_unknown_keys():

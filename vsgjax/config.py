@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 
 MODELS = ("dreamerv1", "dreamerv2", "vsg", "svsg", "ssm")
-SIZES = ("paper", "small", "debug")
+SIZES = ("paper", "small", "cpu", "debug")
 DOMAINS = ("bbs", "dmc", "atari")
 ALIGNMENTS = ("release", "next_state")  # ac.alignment: see vsgjax/behaviour.py
 ACTOR_GRADS = ("auto", "dynamics", "reinforce", "both")
@@ -250,6 +250,17 @@ _SIZE = {
         "train.eval_every": 10_000, "train.eval_episodes": 2, "train.log_every": 200,
         "train.replay_capacity": 500_000,
     },
+    # Vector observations only (mjx_ tasks): chosen for return per CPU-minute (README, Presets).
+    "cpu": {
+        "model.deter": 128, "model.hidden": 128,
+        "wm.mlp_layers": 2, "wm.mlp_units": 128, "wm.reward_layers": 2,
+        "wm.discount_layers": 2, "ac.actor_layers": 2, "ac.critic_layers": 2,
+        "wm.lr": 1e-3, "ac.actor_lr": 3e-4, "ac.critic_lr": 3e-4,
+        "env.num_envs": 2, "train.batch": 16, "train.length": 32, "train.train_every": 2,
+        "train.prefill": 4000, "train.pretrain": 100, "train.steps": 100_000,
+        "train.eval_every": 4000, "train.eval_episodes": 4, "train.log_every": 2000,
+        "train.replay_capacity": 200_000,
+    },
     "debug": {
         "model.deter": 32, "model.hidden": 32, "wm.cnn_depth": 4,
         "wm.mlp_layers": 1, "wm.mlp_units": 32, "wm.reward_layers": 1,
@@ -267,6 +278,11 @@ _SIZE_MODEL = {
     ("small", "ssm"): {"model.deter": 0},
     ("small", "dreamerv2"): {"model.stoch": 16, "model.classes": 16},
     ("small", "vsg"): {"model.stoch": 16, "model.classes": 16},
+    ("cpu", "svsg"): {"model.deter": 0, "model.stoch": 128},
+    ("cpu", "ssm"): {"model.deter": 0, "model.stoch": 16},
+    ("cpu", "dreamerv1"): {"model.stoch": 16},
+    ("cpu", "dreamerv2"): {"model.stoch": 8, "model.classes": 8},
+    ("cpu", "vsg"): {"model.stoch": 8, "model.classes": 8},
     ("debug", "svsg"): {"model.deter": 0, "model.stoch": 32},
     ("debug", "ssm"): {"model.deter": 0, "model.stoch": 8},
     ("debug", "dreamerv1"): {"model.stoch": 8},
@@ -274,6 +290,9 @@ _SIZE_MODEL = {
     ("debug", "vsg"): {"model.stoch": 4, "model.classes": 4},
 }
 
+
+VECTOR_SIZES = ("cpu",)  # sizes with only an MLP encoder: tasks with vector observations
+VECTOR_TASK_PREFIX = "mjx_"
 
 # Task families whose presets are another domain's: the MJX tasks are DeepMind Control tasks.
 PRESET_DOMAIN = {"mjx": "dmc"}
@@ -307,6 +326,10 @@ def make_config(
     domain = domain_of(task)
     _check_name("model", model, MODELS)
     _check_name("size", size, SIZES)
+    if size in VECTOR_SIZES and not task.startswith(VECTOR_TASK_PREFIX):
+        raise ConfigError(f"size {size!r} is for vector observations and task {task!r} has "
+                          f"images; valid: {VECTOR_TASK_PREFIX}<domain>_<task> tasks with "
+                          f"{size!r}, or sizes {', '.join(s for s in SIZES if s != size)}")
     config = Config(domain=domain, size=size, model=ModelConfig(name=model),
                     env=EnvConfig(task=task))
     layers = (
