@@ -33,8 +33,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import vsgjax
-from vsgjax import api
-from vsgjax.runs import Run
+from vsgjax.loop.load import TrainedRun
+from vsgjax.model import api
 
 CONTEXT = 15
 HORIZON = 35
@@ -71,7 +71,7 @@ class RolloutData:
         return out
 
 
-def pick_episode(run: Run, length: int, index: int | None = None) -> tuple[int, dict]:
+def pick_episode(run: TrainedRun, length: int, index: int | None = None) -> tuple[int, dict]:
     """(index, episode): episode ``index``, or the newest one of at least ``length`` steps."""
     paths = run.episode_paths()
     if not paths:
@@ -94,12 +94,12 @@ def pick_episode(run: Run, length: int, index: int | None = None) -> tuple[int, 
                      f"{length} steps")
 
 
-def rollout_data(run: Run, episode: dict, *, context: int = CONTEXT, horizon: int = HORIZON,
+def rollout_data(run: TrainedRun, episode: dict, *, context: int = CONTEXT, horizon: int = HORIZON,
                  samples: int = SAMPLES, key: jax.Array | None = None,
                  episode_index: int = -1) -> RolloutData:
     """The figure data of one episode (see :class:`RolloutData`).
 
-    The keys are used as :func:`vsgjax.videos.open_loop_frames` uses them, so the frames equal
+    The keys are used as :func:`vsgjax.loop.videos.open_loop_frames` uses them, so the frames equal
     those of the run's open-loop video for the same key.
     """
     length = context + horizon

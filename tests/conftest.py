@@ -24,7 +24,7 @@ def actor_learns(monkeypatch) -> bool:
     loss is wrapped in ``stop_gradient`` (the actor never learns), and every learning test
     that uses this fixture must then FAIL: that shows it measures learning."""
     if BREAK_ACTOR_GRAD:
-        from vsgjax import behaviour
+        from vsgjax.model import behaviour
 
         original = behaviour.actor_loss
 

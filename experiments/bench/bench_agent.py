@@ -1,6 +1,6 @@
 """Agent update and acting costs (``vsgjax/agent.py``) at the ``small`` size on BBS shapes.
 
-Per model: the jitted world-model-only update (``vsgjax.api.train_step``) against the agent's
+Per model: the jitted world-model-only update (``vsgjax.model.api.train_step``) against the agent's
 joint update (world model + imagination actor-critic), so the behaviour-learning share is
 visible, and one jitted ``policy_step`` for one env. Batch 16 x 50 of 64x64x3 images, horizon
 15 (small size), 800 imagined start states. Medians over ``REPEATS`` calls after compilation;
@@ -19,9 +19,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from vsgjax import api
-from vsgjax.agent import Agent
 from vsgjax.config import make_config
+from vsgjax.model import api
+from vsgjax.model.agent import Agent
 
 MODELS = ("vsg", "svsg", "dreamerv2")
 REPEATS = 5

@@ -3,8 +3,8 @@
 For each (env, N envs, driver) we time, per agent step (median over repeats, compilation
 excluded and reported separately):
 
-* ``collect``: :meth:`vsgjax.collect.Collector.run` over a chunk;
-* ``env``: :meth:`vsgjax.collect.EnvBatch.step` alone in a Python loop (same envs, same
+* ``collect``: :meth:`vsgjax.data.collect.Collector.run` over a chunk;
+* ``env``: :meth:`vsgjax.data.collect.EnvBatch.step` alone in a Python loop (same envs, same
   recording), with precomputed actions;
 * ``policy``: the policy alone, ``jax.lax.scan`` over the chunk on a fixed observation;
 * ``boundary = collect - env - policy``: what crossing between JAX and Python costs.
@@ -27,10 +27,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vsgjax.collect import DEFAULT_CHUNK, Collector, EnvBatch, make_env_batch
+from tests.support.fake_envs import FakeImageEnv
 from vsgjax.config import make_config
+from vsgjax.data.collect import DEFAULT_CHUNK, Collector, EnvBatch, make_env_batch
 from vsgjax.envs import make_env
-from vsgjax.envs.fake import FakeImageEnv
 from vsgjax.envs.wrappers import DefaultSeed
 
 RESULTS = Path(__file__).parent / "results" / "collect.md"
@@ -124,8 +124,8 @@ def chunk_fns(envs: EnvBatch, policy, params, carry, chunk: int) -> tuple[dict, 
     fns = {"policy": lambda: jax.block_until_ready(scan(params, carry, obs, images, KEY)),
            "env": env_steps}
     first = {}
-    for mode in ("scan", "loop"):
-        collector = Collector(envs, policy, chunk=chunk, mode=mode)
+    for mode in ("loop",):
+        collector = Collector(envs, policy, chunk=chunk)
         start = time.perf_counter()
         collector.run(params, carry, KEY)
         first[mode] = time.perf_counter() - start
@@ -146,7 +146,7 @@ def boundary_rows(name: str, make_batch, chunk: int, policy_name: str = "stand-i
         times = {k: v / chunk * 1e6 for k, v in interleaved_times(fns, REPEATS).items()}
         stats = {k: (np.median(v[:, 0]), v[:, 0].min(), np.median(v[:, 1]))
                  for k, v in times.items()}
-        for mode in ("scan", "loop"):
+        for mode in ("loop",):
             boundary = np.subtract(np.subtract(stats[mode], stats["env"]), stats["policy"])
             cells = [stats[mode], stats["env"], stats["policy"]]
             rows.append(f"| {name} | {policy_name} | {num_envs} | {chunk} | {mode} | "
@@ -164,7 +164,7 @@ def make_policy(name: str, envs: EnvBatch):
     if name == "stand-in":
         params = standin_params(spec.obs_shape, spec.action_dim, jax.random.PRNGKey(0))
         return standin_policy, params, jnp.zeros((envs.num_envs, HIDDEN))
-    from vsgjax.agent import Agent
+    from vsgjax.model.agent import Agent
 
     agent = Agent(make_config("bbs_basic", "vsg", name.removeprefix("vsg-")),
                   spec.obs_shape, spec.action_dim, spec.discrete)

@@ -11,7 +11,7 @@ machine has 24 GiB: a child that keeps every freed byte was OOM-killed at 24.3 G
 
 Allocators: glibc; mimalloc keeping every freed byte (``MIMALLOC_PURGE_DELAY=-1``, the setting
 of earlier sessions); mimalloc returning memory unused for ``PURGE_DELAYS`` ms (100 ms is what
-:mod:`vsgjax.host` sets).
+:mod:`vsgjax.loop.allocator` sets).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-from vsgjax.host import allocator_env, glibc_env, mimalloc_library
+from vsgjax.loop.allocator import allocator_env, glibc_env, mimalloc_library
 
 UPDATES = 4
 RSS_LIMIT_GIB = 20.0
@@ -39,8 +39,8 @@ def measure(size: str) -> dict:
     import jax
 
     from experiments.bench.bench_agent import replay_batch
-    from vsgjax.agent import Agent
     from vsgjax.config import make_config
+    from vsgjax.model.agent import Agent
 
     config = make_config("bbs_basic", "vsg", size, ["train.batch=16", "train.length=50"])
     agent = Agent(config, (64, 64, 3), 2, False)

@@ -17,8 +17,8 @@ from pathlib import Path
 import jax
 
 from experiments.bench import bench_agent
-from vsgjax.agent import Agent
 from vsgjax.config import PRECISIONS, make_config
+from vsgjax.model.agent import Agent
 
 MODELS = ("vsg",)
 RESULTS = Path(__file__).parent / "results" / "precision.md"

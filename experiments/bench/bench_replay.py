@@ -24,9 +24,9 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from vsgjax import checkpoint
-from vsgjax.replay import EpisodeStore, Replay, decode_episode, encode_episode
-from vsgjax.replay.store import _encode_image as encode_raw_image  # the chosen message format
+from vsgjax.data import checkpoint
+from vsgjax.data.replay import EpisodeStore, Replay, decode_episode, encode_episode
+from vsgjax.data.replay.store import _encode_image as encode_raw_image  # the chosen message format
 
 STEPS = 751
 ACTION_DIM = 2

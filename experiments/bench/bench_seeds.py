@@ -53,14 +53,15 @@ def loop_child(seeds: list[int], window: int, repeats: int, barrier: str | None 
                size: str = "small", overrides: tuple[str, ...] = ()) -> dict:
     """Warm up a trainer of ``seeds``, wait at the barrier, time ``repeats`` loop windows."""
     from vsgjax.config import make_config
-    from vsgjax.train import Trainer, enable_compilation_cache
+    from vsgjax.loop.host_trainer import HostTrainer
+    from vsgjax.train import enable_compilation_cache
 
     enable_compilation_cache()
     configs = [make_config(TASK, "vsg", size, [f"train.seed={s}", *OVERRIDES, *overrides])
                for s in seeds]
     with tempfile.TemporaryDirectory() as root:
         started = time.perf_counter()
-        trainer = Trainer(configs, [Path(root) / f"s{s}" for s in seeds], progress=False,
+        trainer = HostTrainer(configs, [Path(root) / f"s{s}" for s in seeds], progress=False,
                           out=lambda *_: None)
         try:
             while trainer.counters.updates < 3:
@@ -115,9 +116,9 @@ def update_child(repeats: int) -> dict:
     import jax
 
     from experiments.bench.bench_agent import replay_batch
-    from vsgjax.agent import Agent
     from vsgjax.config import make_config
-    from vsgjax.parallel import Parallel, stack
+    from vsgjax.loop.parallel import Parallel, stack
+    from vsgjax.model.agent import Agent
 
     config = make_config(TASK, "vsg", "small")
     agent = Agent(config, (64, 64, 3), 2, False)
@@ -236,7 +237,8 @@ def markdown(table: list[tuple[int, dict, dict | None, dict | None]], updates: d
         "### One update, timed alone (small, batch 8 x 32, 2 forced host devices)",
         "",
         f"Median of {UPDATE_REPEATS} after compilation. `S x D`: the trainer's vmapped update of "
-        "S seeds over D devices (`vsgjax.parallel`); on one CPU the two forced devices share the "
+        "S seeds over D devices (`vsgjax.loop.parallel`); on one CPU the two forced devices share "
+        "the "
         "same 2 cores, so D = 2 shows the sharding's overhead.",
         "",
         "| update | s | per seed s | vs plain |",

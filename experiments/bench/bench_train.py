@@ -31,8 +31,9 @@ import numpy as np
 
 from vsgjax.config import make_config
 from vsgjax.envs import make_env
-from vsgjax.parallel import take
-from vsgjax.train import Trainer, enable_compilation_cache
+from vsgjax.loop.host_trainer import HostTrainer
+from vsgjax.loop.parallel import take
+from vsgjax.train import enable_compilation_cache
 
 TASKS = ("dmc_walker_walk", "bbs_basic")
 WINDOWS = {"small": 60, "debug": 200}  # agent steps per timed window, by size
@@ -40,7 +41,7 @@ REPEATS = 3
 RESULTS = Path(__file__).parent / "results" / "train.md"
 
 
-def warm_trainer(task: str, size: str, logdir: Path) -> tuple[Trainer, float]:
+def warm_trainer(task: str, size: str, logdir: Path) -> tuple[HostTrainer, float]:
     """A VSG trainer past prefill with a few updates done; returns it and the warm-up time.
 
     The train ratio is the size's default (one update of ``train.batch`` x ``train.length``
@@ -49,13 +50,13 @@ def warm_trainer(task: str, size: str, logdir: Path) -> tuple[Trainer, float]:
     config = make_config(task, "vsg", size, ["train.eval_every=100000000",
                                              "train.video_every=100000000"])
     started = time.perf_counter()
-    trainer = Trainer(config, logdir, progress=False)
+    trainer = HostTrainer(config, logdir, progress=False)
     while trainer.counters.updates < 3:
         trainer.iteration()
     return trainer, time.perf_counter() - started
 
 
-def time_loop(trainer: Trainer, window: int) -> tuple[float, int]:
+def time_loop(trainer: HostTrainer, window: int) -> tuple[float, int]:
     """Seconds for ``window`` agent steps of the loop, and the updates it made."""
     start_steps, start_updates = trainer.counters.agent_steps, trainer.counters.updates
     started = time.perf_counter()
@@ -78,7 +79,7 @@ def time_env(task_config, steps: int) -> float:
     return elapsed
 
 
-def time_train(trainer: Trainer, updates: int) -> float:
+def time_train(trainer: HostTrainer, updates: int) -> float:
     """Seconds of ``updates`` of the trainer's (one-seed) update on replay batches."""
     total, replay = 0.0, trainer.runs[0].replay
     keys = np.asarray(trainer.keys)
@@ -93,7 +94,7 @@ def time_train(trainer: Trainer, updates: int) -> float:
     return total
 
 
-def time_policy(trainer: Trainer, steps: int) -> float:
+def time_policy(trainer: HostTrainer, steps: int) -> float:
     agent, spec = trainer.agent, trainer.collector.envs.spec
     params = take(trainer.state.params, 0)
     carry = agent.initial_carry(1)

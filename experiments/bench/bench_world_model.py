@@ -17,7 +17,8 @@ Measured, at batch 16 x length 50 with 64x64x3 images (BBS presets):
   with the rate each part reaches: the profile that says where time goes;
 * ``imagine`` throughput (start states x horizon per second) from 800 start states, H = 15;
 * the host allocator's effect: the profiled model's update again in a process on glibc's
-  malloc instead of mimalloc (:mod:`vsgjax.host`), with page faults and kernel time per update.
+  malloc instead of mimalloc (:mod:`vsgjax.loop.allocator`), with page faults and kernel time
+per update.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import sys
 import time
 from pathlib import Path
 
-from vsgjax.host import allocator_active, allocator_env, glibc_env
+from vsgjax.loop.allocator import allocator_active, allocator_env, glibc_env
 
 RESULTS = Path(__file__).parent / "results" / "world_model.md"
 # every child's answer is also appended here, so an interrupted run keeps what it measured
@@ -55,7 +56,7 @@ def lax_convolutions():
     """
     from jax import lax
 
-    from vsgjax import networks
+    from vsgjax.model import networks
 
     def flat(fn):
         def apply(x, kernel, dtype=None):  # the FLOP count does not depend on the dtype
@@ -136,7 +137,7 @@ def measure_update(model: str, size: str, updates: int) -> dict:
     """Compile and time the world-model update of one configuration (run in a subprocess)."""
     import jax
 
-    from vsgjax import api
+    from vsgjax.model import api
 
     config = _config(model, size)
     state = api.init(config, jax.random.PRNGKey(0))
@@ -178,9 +179,9 @@ def measure_breakdown(model: str, size: str, repeats: int) -> list[dict]:
     import jax
     import jax.numpy as jnp
 
-    from vsgjax import api
-    from vsgjax.networks import image_to_float, normal_log_prob
-    from vsgjax.world_model import WorldModel
+    from vsgjax.model import api
+    from vsgjax.model.networks import image_to_float, normal_log_prob
+    from vsgjax.model.world_model import WorldModel
 
     config = _config(model, size)
     wm = WorldModel(config)
@@ -223,8 +224,8 @@ def measure_imagine(model: str, size: str, repeats: int) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from vsgjax import api
-    from vsgjax.world_model import WorldModel
+    from vsgjax.model import api
+    from vsgjax.model.world_model import WorldModel
 
     config = _config(model, size)
     wm = WorldModel(config)
@@ -257,7 +258,7 @@ def measure_imagine(model: str, size: str, repeats: int) -> dict:
 def _run_child(*args: str, glibc: bool = False) -> dict | list:
     """Run this module with ``args`` in a fresh process; return its JSON answer.
 
-    It runs on mimalloc (:mod:`vsgjax.host`) unless ``glibc`` (the allocator comparison).
+    It runs on mimalloc (:mod:`vsgjax.loop.allocator`) unless ``glibc`` (the allocator comparison).
     """
     root = Path(__file__).resolve().parents[2]
     env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))

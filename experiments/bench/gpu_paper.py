@@ -32,9 +32,9 @@ def time_update(seeds: int, precision: str, size: str) -> tuple[float, int | Non
     import numpy as np
 
     from experiments.bench.bench_agent import replay_batch
-    from vsgjax.agent import Agent
     from vsgjax.config import make_config
-    from vsgjax.parallel import Parallel, stack
+    from vsgjax.loop.parallel import Parallel, stack
+    from vsgjax.model.agent import Agent
 
     config = make_config("bbs_basic", "vsg", size, [f"model.precision={precision}",
                                                     "train.batch=16", "train.length=50"])

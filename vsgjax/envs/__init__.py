@@ -11,7 +11,7 @@
 
 Every env made here is a ``gymnasium.Env`` whose observation is a uint8 image ``(H, W, C)``
 (C=3, or 1 for grayscale Atari) and whose action space is ``Box(-1, 1, (A,), float32)`` or
-``Discrete(n)`` (the agent acts with one-hot vectors; ``vsgjax.collect`` converts). Action
+``Discrete(n)`` (the agent acts with one-hot vectors; ``vsgjax.data.collect`` converts). Action
 repeat and the time limit come from ``EnvConfig`` (``time_limit`` counts env steps, before
 action repeat). ``make_env(cfg, seed)`` returns an env whose first ``reset()`` is seeded with
 ``seed``; evaluation envs (``eval=True``) draw from a disjoint seed range (``seed +
@@ -21,39 +21,20 @@ EVAL_SEED_OFFSET``). The host loop also takes gymnasium vector envs with observa
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import functools
+from collections.abc import Callable
 
 import gymnasium
 import numpy as np
 
 from vsgjax.config import Config, ConfigError, EnvConfig
+from vsgjax.envs.spec import EVAL_SEED_OFFSET, EnvSpec, TaskError
 from vsgjax.envs.wrappers import DefaultSeed
-from vsgjax.observations import IMAGE_DTYPE, VECTOR_DTYPE, ObsSpec, obs_spec
+from vsgjax.keys import IMAGE_DTYPE, VECTOR_DTYPE
+from vsgjax.model.observations import ObsSpec
 
 TASK_PATTERNS = ("bbs_<variant>", "dmc_<domain>_<task>", "atari_<game>", "mjx_<domain>_<task>")
 DEVICE_FAMILIES = ("mjx",)  # tasks that step inside JAX (vsgjax/device_loop.py), not gymnasium
-EVAL_SEED_OFFSET = 1_000_000  # eval env seeds are seed + offset, never a training env's seed
-
-
-class TaskError(ValueError):
-    """An unknown or malformed task name; the message lists what is valid."""
-
-
-class EnvSpec(NamedTuple):
-    """What the model needs to know about an env, as plain values.
-
-    ``obs_shape``: the image shape ``(H, W, C)`` of an image env, or the :class:`ObsSpec` of an
-    env with observation dicts (what ``Agent`` takes as ``obs_shape`` either way).
-    """
-
-    obs_shape: tuple[int, int, int] | ObsSpec
-    action_dim: int
-    discrete: bool
-
-    @property
-    def obs(self) -> ObsSpec:
-        """The observation spec (an image env's is ``{"image": (H, W, C)}``)."""
-        return obs_spec(self.obs_shape)
 
 
 def parse_task(task: str) -> tuple[str, tuple[str, ...]]:
@@ -121,13 +102,26 @@ def check_env_config(env_cfg: EnvConfig) -> tuple[str, tuple[str, ...]]:
     return family, args
 
 
+def make_envs(env_cfg: EnvConfig, seed: int, num_envs: int, *, eval: bool = False
+              ) -> list[Callable[[], gymnasium.Env]] | gymnasium.vector.VectorEnv:
+    """What a host env batch steps: ``num_envs`` env builders seeded ``seed, seed + 1, ...``
+    (picklable, for worker processes), or for the on-device tasks one vectorised env."""
+    family, _ = check_env_config(env_cfg)
+    if family in DEVICE_FAMILIES:
+        from vsgjax.envs.mjx.vector_env import make_mjx_vector_env
+
+        offset = EVAL_SEED_OFFSET if eval else 0
+        return make_mjx_vector_env(env_cfg, [seed + offset + i for i in range(num_envs)])
+    return [functools.partial(make_env, env_cfg, seed + i, eval=eval) for i in range(num_envs)]
+
+
 def make_env(env_cfg: EnvConfig, seed: int, *, eval: bool = False) -> gymnasium.Env:
     """Build the env named by ``env_cfg.task``; its first ``reset()`` is seeded with ``seed``."""
     family, args = check_env_config(env_cfg)
     if family in DEVICE_FAMILIES:
         raise TaskError(f"{env_cfg.task!r} steps on the device, not as a gymnasium env; it "
                         "trains with the device loop (train.loop=device or auto) or, through "
-                        "its vector env, the host loop (vsgjax.collect.make_env_batch)")
+                        "its vector env, the host loop (vsgjax.data.collect.make_env_batch)")
     seed = seed + EVAL_SEED_OFFSET if eval else seed
     env = _BUILDERS[family](args, env_cfg, seed)
     env = _normalize_actions(env)

@@ -34,9 +34,9 @@ with contextlib.redirect_stdout(io.StringIO()):
     # backend is not installed (it is not used here); keep the training log's stdout clean.
     from mujoco import mjx  # noqa: F401
 
-from vsgjax.envs import TaskError
 from vsgjax.envs.mjx import cartpole, cheetah, finger, hopper, pendulum, reacher, walker
 from vsgjax.envs.mjx.core import MjxState, MjxTask, TaskSpec, physics
+from vsgjax.envs.spec import TaskError
 
 __all__ = ["MjxState", "MjxTask", "TaskSpec", "make_mjx_task", "mjx_task_names",
            "parse_mjx_task", "physics"]

@@ -1,0 +1,153 @@
+"""Checkpoints: round trip, keep-last-N, corrupt fallback, target mismatch, stop signals."""
+
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from vsgjax.data import checkpoint
+from vsgjax.data.checkpoint import CheckpointMismatchError, StopSignal
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+def make_state(seed=0):
+    """A training-state-like pytree: params, an optax state (NamedTuples), keys, a counter."""
+    key = jax.random.PRNGKey(seed)
+    params = {
+        "encoder": {"w": jax.random.normal(key, (3, 4)), "b": jnp.zeros(4)},
+        "head": [jnp.arange(5, dtype=jnp.int32), np.full((2, 2), seed, np.float64)],
+    }
+    return {
+        "params": params,
+        "opt": optax.adam(1e-3).init(params),
+        "key": jax.random.fold_in(key, 1),
+        "updates": seed + 7,
+    }
+
+
+def assert_trees_equal(actual, expected):
+    assert jax.tree.structure(actual) == jax.tree.structure(expected)
+    for a, e in zip(jax.tree.leaves(actual), jax.tree.leaves(expected), strict=True):
+        assert type(a) is type(e) or (isinstance(a, jax.Array) and isinstance(e, jax.Array))
+        assert np.asarray(a).dtype == np.asarray(e).dtype
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(e))
+
+
+def test_round_trip_restores_tree_meta_and_rng(tmp_path):
+    state = make_state(seed=3)
+    rng = np.random.default_rng(5)
+    rng.random(10)
+    meta = {"env_steps": 1234, "rng": checkpoint.rng_state(rng)}
+    path = checkpoint.save(tmp_path, 40, state, meta)
+    assert path == tmp_path / "ckpt-000000000040.ckpt" and checkpoint.latest(tmp_path) == path
+
+    restored = checkpoint.restore(tmp_path, make_state(seed=0))
+    assert restored.step == 40 and restored.path == path
+    assert_trees_equal(restored.tree, state)
+    assert isinstance(restored.tree["opt"][0], optax.ScaleByAdamState)
+    assert restored.meta["env_steps"] == 1234
+    resumed = checkpoint.rng_from_state(restored.meta["rng"])
+    np.testing.assert_array_equal(resumed.random(4), rng.random(4))
+
+
+def test_keeps_the_last_n_checkpoints(tmp_path):
+    for step in [10, 20, 30, 40, 50]:
+        checkpoint.save(tmp_path, step, make_state(step), keep=2)
+    assert [step for step, _ in checkpoint.list_checkpoints(tmp_path)] == [40, 50]
+    assert checkpoint.latest(tmp_path).name == "ckpt-000000000050.ckpt"
+    assert checkpoint.restore(tmp_path, make_state()).tree["updates"] == 57
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "flip_byte"])
+def test_corrupt_latest_falls_back_to_previous_with_warning(tmp_path, damage):
+    checkpoint.save(tmp_path, 1, make_state(1))
+    latest = checkpoint.save(tmp_path, 2, make_state(2))
+    data = latest.read_bytes()
+    latest.write_bytes({
+        "truncate": data[: len(data) - 10],
+        "garbage": b"\x00garbage" * 100,
+        "flip_byte": data[:-20] + bytes([data[-20] ^ 1]) + data[-19:],
+    }[damage])
+    with pytest.warns(UserWarning, match=latest.name):
+        restored = checkpoint.restore(tmp_path, make_state())
+    assert restored.step == 1
+    assert_trees_equal(restored.tree, make_state(1))
+
+
+def test_saving_after_a_fallback_removes_the_abandoned_newer_checkpoint(tmp_path):
+    for step in [10, 20, 30]:
+        checkpoint.save(tmp_path, step, make_state(step), keep=2)
+    checkpoint.checkpoint_path(tmp_path, 30).write_bytes(b"corrupt")
+    with pytest.warns(UserWarning, match="ckpt-000000000030"):
+        assert checkpoint.restore(tmp_path, make_state()).step == 20
+    checkpoint.save(tmp_path, 25, make_state(25), keep=2)
+    assert [step for step, _ in checkpoint.list_checkpoints(tmp_path)] == [20, 25]
+
+
+def test_no_checkpoint_and_leftover_temp_files_give_none(tmp_path):
+    assert checkpoint.restore(tmp_path / "missing", make_state()) is None
+    (tmp_path / ".ckpt-000000000009.ckpt.abc123.tmp").write_bytes(b"partial")
+    assert checkpoint.latest(tmp_path) is None
+    assert checkpoint.restore(tmp_path, make_state()) is None
+
+
+def test_target_mismatch_is_an_error_not_a_fallback(tmp_path):
+    checkpoint.save(tmp_path, 1, make_state())
+    wider = make_state()
+    wider["params"]["encoder"]["b"] = jnp.zeros(5)
+    with pytest.raises(CheckpointMismatchError, match=r"\['params'\]\['encoder'\]\['b'\].*\[4\]"):
+        checkpoint.restore(tmp_path, wider)
+    renamed = make_state()
+    renamed["extra"] = jnp.zeros(1)
+    with pytest.raises(CheckpointMismatchError, match=r"missing \[\"\['extra'\]\"\]"):
+        checkpoint.restore(tmp_path, renamed)
+
+
+def test_typed_keys_and_non_json_meta_are_rejected(tmp_path):
+    with pytest.raises(TypeError, match="key_data"):
+        checkpoint.save(tmp_path, 0, {"key": jax.random.key(0)})
+    with pytest.raises(TypeError):
+        checkpoint.save(tmp_path, 0, make_state(), {"rng": np.random.default_rng(0)})
+    assert checkpoint.list_checkpoints(tmp_path) == []
+
+
+def test_stop_signal_lets_the_loop_save_and_exit(tmp_path):
+    """SIGTERM then SIGINT sent to itself: each sets the flag, the loop saves and leaves."""
+    script = textwrap.dedent(f"""
+        import os, signal
+        import numpy as np
+        from vsgjax.data import checkpoint
+        from vsgjax.data.checkpoint import StopSignal
+        for save_step, signum in enumerate((signal.SIGTERM, signal.SIGINT)):
+            with StopSignal() as stop:
+                step = 0
+                while not stop.requested:
+                    step += 1
+                    if step == 3:
+                        os.kill(os.getpid(), signum)
+                checkpoint.save({str(tmp_path)!r}, save_step, {{"step": np.array(step)}})
+                print(signal.Signals(stop.received).name, step)
+        print("handlers restored", signal.getsignal(signal.SIGTERM) == signal.SIG_DFL)
+    """)
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                            timeout=120, cwd=REPO_ROOT)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split("\n")[:3] == ["SIGTERM 3", "SIGINT 3", "handlers restored True"]
+    assert [step for step, _ in checkpoint.list_checkpoints(tmp_path)] == [0, 1]
+
+
+def test_second_signal_interrupts():
+    with StopSignal([signal.SIGUSR1]) as stop:
+        signal.raise_signal(signal.SIGUSR1)
+        assert stop.requested and stop.received == signal.SIGUSR1
+        with pytest.raises(KeyboardInterrupt, match="second signal SIGUSR1"):
+            signal.raise_signal(signal.SIGUSR1)
+    assert signal.getsignal(signal.SIGUSR1) == signal.SIG_DFL

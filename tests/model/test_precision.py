@@ -1,0 +1,201 @@
+"""Mixed precision (``model.precision``, vsgjax/precision.py) on the real models at debug size.
+
+float32 must be the computation of before: its numbers are checked against values computed
+by the code before precision existed (``REFERENCE``: bit for bit on the CPU that recorded them,
+to float32 rounding on others; the float32 programs of every model's loss and agent update also
+lowered to the same StableHLO text as before, checked once by hand).
+bfloat16 must run every model's jitted agent update with float32 parameters, optimizer state
+and gates that are exactly 0/1, with every matmul in bfloat16 and metrics close to float32's.
+Each (model, precision) update compiles once (``_update``) and serves every test of it. As in
+tests/test_agent.py, VSG and DreamerV2 run by default; the other three models' bfloat16 updates
+are marked slow (``make test`` runs them, ``make test-fast`` skips them).
+"""
+
+import functools
+import re
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from vsgjax.config import ConfigError, make_config
+from vsgjax.model.agent import Agent
+from vsgjax.model.precision import compute_dtype, matmul
+
+MODELS = ("dreamerv1", "dreamerv2", "vsg", "svsg", "ssm")
+slow = pytest.mark.slow
+UPDATE_MODELS = ["vsg", "dreamerv2", *(pytest.param(m, marks=slow) for m in ("svsg", "dreamerv1",
+                                                                          "ssm"))]
+BATCH, LENGTH = 2, 3
+# float32 metrics of one agent update (init key 0, update key 1, `replay_batch`), computed by the
+# code before model.precision existed (XLA:CPU, jax 0.10.2). Exact for float32; the reference
+# that bfloat16 is compared with.
+REFERENCE = {
+    "dreamerv1": {"wm/loss": 11813.6611328125, "wm/kl": 0.19828811287879944,
+                 "wm/reward_loss": 1.1420493125915527, "wm/grad_norm": 16.521244049072266,
+                 "actor/loss": 0.07793346047401428, "critic/loss": 0.5019916296005249,
+                 "actor/grad_norm": 0.024831876158714294, "critic/grad_norm": 0.5362205505371094,
+                 "imag/return": -0.21501699090003967},
+    "dreamerv2": {"wm/loss": 11812.7861328125, "wm/kl": 0.08617731928825378,
+                 "wm/reward_loss": 1.3618558645248413, "wm/grad_norm": 15.079994201660156,
+                 "actor/loss": -0.07194831222295761, "critic/loss": 0.527163028717041,
+                 "actor/grad_norm": 0.24358177185058594, "critic/grad_norm": 0.2625589072704315,
+                 "imag/return": -0.05556188151240349},
+    "vsg": {"wm/loss": 11812.603515625, "wm/kl": 0.037896402180194855,
+           "wm/reward_loss": 1.0997101068496704, "wm/grad_norm": 15.668978691101074,
+           "actor/loss": -0.025097619742155075, "critic/loss": 0.5133157968521118,
+           "actor/grad_norm": 0.012067166157066822, "critic/grad_norm": 0.18422862887382507,
+           "imag/return": 0.027063341811299324},
+    "svsg": {"wm/loss": 11814.4755859375, "wm/kl": 0.21316027641296387,
+            "wm/reward_loss": 1.3335952758789062, "wm/grad_norm": 18.117650985717773,
+            "actor/loss": 0.24071110785007477, "critic/loss": 1.2999900579452515,
+            "actor/grad_norm": 0.01728609763085842, "critic/grad_norm": 2.980119228363037,
+            "imag/return": -0.36715930700302124},
+    "ssm": {"wm/loss": 11813.6806640625, "wm/kl": 0.9280776977539062,
+           "wm/reward_loss": 1.173035979270935, "wm/grad_norm": 17.030963897705078,
+           "actor/loss": -0.16678178310394287, "critic/loss": 0.496447890996933,
+           "actor/grad_norm": 0.0663064569234848, "critic/grad_norm": 0.456672728061676,
+           "imag/return": 0.2854248285293579},
+}
+# float64 sum of every parameter after that update, float32 (exact; same provenance).
+REFERENCE_PARAM_SUM = {"vsg": -42.52956275058477}
+# bfloat16 against float32 (observed at most 3e-2 relative, on imag/return). The world-model
+# loss is dominated by the image log-likelihood's constant (~11,291 nats), so it gets its own,
+# tighter tolerance (observed 1e-6).
+RTOL, ATOL, WM_LOSS_RTOL = 5e-2, 1e-3, 1e-4
+BF16_DOT = re.compile(r"stablehlo\.dot_general.*\(tensor<[^>]*xbf16>, tensor<[^>]*xbf16>\)")
+
+
+def replay_batch(action_dim: int, discrete: bool, seed: int = 0) -> dict:
+    """tests/test_agent.py's batch: episode starts at t = 0 (and mid-sequence), one terminal."""
+    rng = np.random.default_rng(seed)
+    is_first = np.zeros((BATCH, LENGTH), bool)
+    is_first[:, 0] = is_first[1, 2] = True
+    if discrete:
+        action = np.eye(action_dim, dtype=np.float32)[rng.integers(0, action_dim, (BATCH, LENGTH))]
+    else:
+        action = rng.uniform(-1, 1, (BATCH, LENGTH, action_dim)).astype(np.float32)
+    is_terminal = np.zeros((BATCH, LENGTH), bool)
+    is_terminal[1, 1] = True
+    return {
+        "image": rng.integers(0, 256, (BATCH, LENGTH, 64, 64, 3), dtype=np.uint8),
+        "action": np.where(is_first[..., None], 0.0, action).astype(np.float32),
+        "reward": np.where(is_first, 0.0, rng.normal(size=(BATCH, LENGTH))).astype(np.float32),
+        "is_first": is_first, "is_terminal": is_terminal,
+    }
+
+
+def make_agent(model: str, precision: str) -> Agent:
+    config = make_config("bbs_basic", model, "debug", [f"model.precision={precision}"])
+    discrete = model == "dreamerv2"
+    return Agent(config, (64, 64, 3), 3 if discrete else 2, discrete)
+
+
+@functools.cache
+def _setup(model: str, precision: str):
+    """(agent, batch, initial state)."""
+    agent = make_agent(model, precision)
+    return agent, replay_batch(agent.action_dim, agent.discrete), agent.init(jax.random.PRNGKey(0))
+
+
+@functools.cache
+def _update(model: str, precision: str):
+    """(agent, batch, state_0, state_1, metrics_1, StableHLO text of the update)."""
+    agent, batch, state = _setup(model, precision)
+    key = jax.random.PRNGKey(1)
+    lowered = agent.train_step.lower(agent, state, batch, key)
+    new_state, metrics = lowered.compile()(state, batch, key)
+    return agent, batch, state, new_state, jax.device_get(metrics), lowered.as_text()
+
+
+def _float32_leaves(tree) -> bool:
+    return all(x.dtype == jnp.float32 for x in jax.tree.leaves(tree)
+               if jnp.issubdtype(x.dtype, jnp.floating))
+
+
+# --- the policy -------------------------------------------------------------------------------
+
+def test_unknown_precision_is_a_config_error():
+    with pytest.raises(ConfigError, match=r"'float16'.*float32, bfloat16"):
+        make_config("bbs_basic", "vsg", "debug", overrides=["model.precision=float16"])
+    with pytest.raises(ValueError, match="float16"):
+        compute_dtype("float16")
+
+
+def test_matmul_rounds_its_inputs_and_accumulates_in_float32():
+    x, w = jax.random.normal(jax.random.PRNGKey(0), (3, 4, 64)), jnp.linspace(-1, 1, 64 * 5)
+    w = w.reshape(64, 5)
+    low = matmul(x, w, jnp.bfloat16)
+    rounded = lambda a: a.astype(jnp.bfloat16).astype(jnp.float32)
+    assert low.dtype == jnp.float32
+    np.testing.assert_allclose(low, rounded(x) @ rounded(w), rtol=1e-5, atol=1e-5)
+    assert np.array_equal(matmul(x, w), x @ w)
+
+
+def test_matmul_gradient_is_float32_and_close_to_float32s():
+    x, w = jax.random.normal(jax.random.PRNGKey(0), (7, 16)), jnp.ones((16, 3)) / 4
+    loss = lambda x, w, dtype: jnp.sum(jnp.sin(matmul(x, w, dtype)))
+    exact = jax.grad(loss, (0, 1))(x, w, jnp.float32)
+    low = jax.grad(loss, (0, 1))(x, w, jnp.bfloat16)
+    for a, b in zip(exact, low, strict=True):
+        assert b.dtype == jnp.float32
+        np.testing.assert_allclose(b, a, rtol=2e-2, atol=2e-2)
+
+
+# --- float32: unchanged -----------------------------------------------------------------------
+
+def test_float32_update_is_unchanged():
+    """Bit-identical on the CPU it was recorded on; other CPUs' XLA code may differ in the last
+    bits, so the check allows float32 rounding (any real change is far larger)."""
+    _, _, _, state, metrics, text = _update("vsg", "float32")
+    for name, value in REFERENCE["vsg"].items():
+        np.testing.assert_allclose(float(metrics[name]), value, rtol=1e-5, atol=1e-7,
+                                   err_msg=name)
+    param_sum = sum(np.asarray(x, np.float64).sum() for x in jax.tree.leaves(state.params))
+    np.testing.assert_allclose(float(param_sum), REFERENCE_PARAM_SUM["vsg"], rtol=1e-6)
+    assert "bf16" not in text
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_float32_programs_have_no_bfloat16(model):
+    agent = make_agent(model, "float32")
+    batch = replay_batch(agent.action_dim, agent.discrete)
+    state = jax.eval_shape(agent.init, jax.random.PRNGKey(0))
+    text = agent.train_step.lower(agent, state, batch, jax.random.PRNGKey(1)).as_text()
+    assert "stablehlo.dot_general" in text and "bf16" not in text
+
+
+# --- bfloat16 ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("model", UPDATE_MODELS)
+def test_bfloat16_update_is_finite_float32_and_close_to_float32(model):
+    _, _, state, new_state, metrics, _ = _update(model, "bfloat16")
+    assert all(np.isfinite(v) for v in metrics.values()), metrics
+    reference = REFERENCE[model]
+    np.testing.assert_allclose(metrics["wm/loss"], reference["wm/loss"], rtol=WM_LOSS_RTOL)
+    for name, value in reference.items():
+        np.testing.assert_allclose(metrics[name], value, rtol=RTOL, atol=ATOL, err_msg=name)
+    assert _float32_leaves(new_state.params) and _float32_leaves(new_state.opt)
+    assert jax.tree.structure(new_state) == jax.tree.structure(state)
+
+
+@pytest.mark.parametrize("model", UPDATE_MODELS)
+def test_bfloat16_update_runs_every_matmul_in_bfloat16(model):
+    text = _update(model, "bfloat16")[-1]
+    dots = [line for line in text.splitlines() if "stablehlo.dot_general" in line]
+    assert dots and all(BF16_DOT.search(line) for line in dots), \
+        [line for line in dots if not BF16_DOT.search(line)][:3]
+
+
+@pytest.mark.parametrize("model", ["vsg", "svsg"])
+def test_bfloat16_gates_are_exactly_zero_or_one(model):
+    """The posterior states' straight-through gate samples (and the states) stay float32 0/1."""
+    agent, batch, state = _setup(model, "bfloat16")
+    wm = agent.world_model
+    observe = jax.jit(lambda params, seq, key: wm.observe(params, seq, key)[0])
+    posts = observe(state.params["wm"], jax.tree.map(lambda x: x[0], batch),
+                    jax.random.PRNGKey(2))
+    assert posts.gate.dtype == jnp.float32 and _float32_leaves(posts)
+    assert np.isin(np.asarray(posts.gate), [0.0, 1.0]).all()
+    assert 0 < np.asarray(posts.gate).mean() < 1

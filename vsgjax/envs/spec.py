@@ -1,0 +1,30 @@
+"""What the rest of the package knows about an env: its spec, task-name errors, seeds."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from vsgjax.model.observations import ObsSpec, obs_spec
+
+EVAL_SEED_OFFSET = 1_000_000  # eval env seeds are seed + offset, never a training env's seed
+
+
+class TaskError(ValueError):
+    """An unknown or malformed task name; the message lists what is valid."""
+
+
+class EnvSpec(NamedTuple):
+    """What the model needs to know about an env, as plain values.
+
+    ``obs_shape``: the image shape ``(H, W, C)`` of an image env, or the :class:`ObsSpec` of an
+    env with observation dicts (what ``Agent`` takes as ``obs_shape`` either way).
+    """
+
+    obs_shape: tuple[int, int, int] | ObsSpec
+    action_dim: int
+    discrete: bool
+
+    @property
+    def obs(self) -> ObsSpec:
+        """The observation spec (an image env's is ``{"image": (H, W, C)}``)."""
+        return obs_spec(self.obs_shape)

@@ -1,0 +1,174 @@
+"""The driver of ``train.loop=device``: one call of the compiled program
+(:class:`~vsgjax.loop.device_program.DeviceProgram`) per iteration, the shared driver between.
+
+Each call is one episode of every env of every seed with the updates due inside it; between
+calls the driver writes the same run directory as the host loop (no videos: the MJX tasks have
+no pixels). The checkpoint holds the whole program state (agent, device replay, PRNG key); the
+envs need none, since every call starts by resetting them.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from vsgjax.config import Config
+from vsgjax.data import checkpoint
+from vsgjax.envs.mjx import make_mjx_task
+from vsgjax.loop.device_program import DeviceProgram, LoopState
+from vsgjax.loop.driver import (
+    LoopDriver,
+    check_seed_group,
+    non_finite,
+    restore_seeds,
+    saved_counters,
+)
+from vsgjax.loop.parallel import seed_batched, stack, take
+from vsgjax.loop.rundir import RunWriter
+from vsgjax.loop.schedule import Counters
+
+
+class DeviceTrainer(LoopDriver):
+    """Train one or more seeds of an ``mjx_`` task with the compiled device program."""
+
+    def __init__(self, configs: list[Config], logdirs: list[Path], *, progress: bool = True,
+                 out=print):
+        check_seed_group(configs, logdirs)
+        self.config, self.out = configs[0], out
+        env = self.config.env
+        task = make_mjx_task(env.task, env.action_repeat, env.time_limit)
+        self.program = DeviceProgram(self.config, task)
+        self.program.check()
+        self.runs = [RunWriter(c, d) for c, d in zip(configs, logdirs, strict=True)]
+        self._compile(len(self.runs))
+        self.state, counters, self.resumed = self._restore()
+        self.start(counters, progress=progress)
+        self._update_replay_steps()
+
+    def _compile(self, seeds: int) -> None:
+        """The jitted programs of ``seeds`` stacked seeds (again after seeds stop)."""
+        train = self.config.train
+        self._episode = {training: jax.jit(seed_batched(
+            lambda state, training=training: self.program.episode(state, training), seeds))
+            for training in (False, True)}
+        self._pretrain = jax.jit(seed_batched(
+            lambda state: self.program.pretrain(state, train.pretrain), seeds))
+        self._evaluate = jax.jit(seed_batched(
+            lambda params, key: self.program.evaluate(params, key, train.eval_episodes), seeds))
+
+    def _restore(self) -> tuple[LoopState, Counters, bool]:
+        def restore(run: RunWriter, max_step: int | None):
+            target = jax.eval_shape(self.program.init, jax.random.PRNGKey(run.seed))
+            return checkpoint.restore(run.ckpt_dir, {"loop": target}, max_step)
+
+        restored = restore_seeds(self.runs, restore)
+        if restored is None:
+            states = [self.program.init(jax.random.PRNGKey(run.seed)) for run in self.runs]
+            return stack(states), Counters(), False
+        for run, ckpt in zip(self.runs, restored, strict=True):
+            run.load(ckpt)
+        return stack([c.tree["loop"] for c in restored]), saved_counters(restored[0]), True
+
+    def describe(self) -> str:
+        program = self.program
+        what = (f"device loop: {self.config.env.num_envs} envs x {program.episode_steps} agent "
+                f"steps per call, {program.updates_per_episode} updates per call once trained, "
+                f"replay of {program.replay_episodes} episode batches")
+        if not self.resumed:
+            return f"starting a new run; {what}"
+        return (f"resuming from {self.runs[0].checkpoint_path.name}: env step {self.env_steps}, "
+                f"update {self.counters.updates}; {what}")
+
+    def parallel_line(self) -> str | None:
+        return f"{len(self.runs)} seeds in one program" if len(self.runs) > 1 else None
+
+    def _update_replay_steps(self) -> None:
+        stored = np.asarray(self.state.replay.stored)
+        per_batch = self.config.env.num_envs * (self.program.episode_steps + 1)
+        for run, count in zip(self.runs, stored, strict=True):
+            run.replay_steps = int(min(count, self.program.replay_episodes)) * per_batch
+
+    # --- the loop ----------------------------------------------------------------------------
+
+    @property
+    def prefilling(self) -> bool:
+        return self.env_steps < self.config.train.prefill
+
+    def step(self) -> None:
+        """One call of the compiled program: one episode of every env (and its updates)."""
+        c = self.counters
+        training = not self.prefilling
+        if training and not self.schedule.training:
+            self._start_training()
+        started = time.monotonic()
+        self.state, metrics, records = self._episode[training](self.state)
+        records = jax.device_get(records)
+        c.agent_steps += self.config.env.num_envs * self.program.episode_steps
+        if training:
+            keep = self._take_metrics(jax.device_get(metrics), self.program.updates_per_episode)
+            records = {k: v[keep] for k, v in records.items()}
+        self._update_replay_steps()
+        self._write_episodes(records)
+        self.progress.update(self.env_steps)
+        self.progress.show({"call_s": time.monotonic() - started, "upd": c.updates})
+
+    def _start_training(self) -> None:
+        train = self.config.train
+        self.schedule.start_training()
+        self.progress.write(f"prefill done at env step {self.env_steps}; compiling the "
+                            f"training call, {train.pretrain} pretraining updates")
+        if train.pretrain:
+            self.state, metrics = self._pretrain(self.state)
+            self._take_metrics(jax.device_get(metrics), train.pretrain)
+
+    def _take_metrics(self, metrics: dict, updates: int) -> list[int]:
+        """Check ``updates`` updates' metrics ``[S, U]`` of every seed and keep their means; a
+        seed with a non-finite one stops (its state of this call is dropped; the others go on).
+        Returns the indices of the seeds kept."""
+        problems = []
+        for i, run in enumerate(self.runs):
+            seed_metrics = {k: np.asarray(v[i]) for k, v in metrics.items()}
+            problem = next(filter(None, (
+                non_finite({k: v[u] for k, v in seed_metrics.items()},
+                           self.counters.updates + u + 1, self.env_steps)
+                for u in range(updates))), None)
+            problems.append(problem)
+            if problem is None:
+                run.window.append({k: float(v.mean()) for k, v in seed_metrics.items()})
+        self.counters.updates += updates
+        if not any(problems):
+            return list(range(len(problems)))
+        keep = self._stop_runs(problems)
+        self.state = take(self.state, keep)
+        self._compile(len(keep))
+        return keep
+
+    def _write_episodes(self, records: dict) -> None:
+        """Every env's finished episode -> its seed's episodes/ and episode metrics."""
+        for i, run in enumerate(self.runs):
+            for env in range(self.config.env.num_envs):
+                episode = {k: np.asarray(v[i, env]) for k, v in records.items()}
+                info = {"return": float(episode["reward"].sum()),
+                        "length": len(episode["reward"]) - 1}
+                run.on_episode(episode, info, self.env_steps)
+
+    def report_log(self, records: list[dict], shared: dict) -> None:
+        returns = "/".join(f"{r['return']:.3g}" for r in records if "return" in r)
+        self.progress.write(f"train env step {self.env_steps:>9}: updates "
+                            f"{self.counters.updates}, return {returns}")
+
+    def eval_episodes(self) -> list[tuple[list[dict], None]]:
+        step, episodes = self.env_steps, self.config.train.eval_episodes
+        keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(run.seed), step)
+                          for run in self.runs])
+        results = jax.device_get(self._evaluate(self.state.agent.params, keys))
+        return [([{"return": float(r), "length": self.program.episode_steps}
+                  for r in results["return"][i][:episodes]], None)
+                for i in range(len(self.runs))]
+
+    def checkpoint_of(self, index: int) -> tuple[dict, dict]:
+        return {"loop": take(self.state, index)}, {}

@@ -1,0 +1,279 @@
+"""The host loop: envs step in Python (:mod:`vsgjax.data.collect`), the updates are one
+vmapped program over the seeds (:mod:`vsgjax.loop.parallel`), the replay lives in memory.
+
+Between its steps the shared driver (:mod:`vsgjax.loop.driver`) logs, evaluates and
+checkpoints; the loop and its schedule are described in docs/training.md.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+from vsgjax.config import Config, ConfigError
+from vsgjax.data import checkpoint
+from vsgjax.data.collect import Collector, EnvBatch, SeedEnvs, acting_policy, make_env_batch
+from vsgjax.data.replay import Replay
+from vsgjax.keys import IMAGE_KEY
+from vsgjax.loop.driver import (
+    LoopDriver,
+    check_seed_group,
+    group_label,
+    non_finite,
+    restore_seeds,
+    saved_counters,
+)
+from vsgjax.loop.evaluate import Evaluator, checkpoint_tree, restore_latest
+from vsgjax.loop.parallel import Parallel, mesh_shape, resolve_devices, split_keys, stack, take
+from vsgjax.loop.rundir import RunWriter
+from vsgjax.loop.schedule import Counters, env_seed
+from vsgjax.loop.videos import has_video, open_loop_video
+from vsgjax.model.agent import Agent
+
+MakeEnvs = Callable[..., EnvBatch]  # (env_cfg, seed, num_envs, *, eval) -> EnvBatch
+# Shown on the progress bar after every update: the world-model loss and the per-pixel image
+# error, which falls visibly from the first updates (the image loss is dominated by a constant).
+PER_UPDATE = {"loss": "wm/loss", "mse": "wm/image_mse"}
+
+
+class SeedRun(RunWriter):
+    """One seed of the host loop: its run directory, replay and evaluation envs."""
+
+    def __init__(self, config: Config, logdir: Path):
+        super().__init__(config, logdir)
+        train = config.train
+        self.replay = Replay(train.replay_capacity, train.length, train.seed, train.oversample_ends)
+
+    @property
+    def replay_steps(self) -> int:
+        return self.replay.num_steps
+
+    def load(self, restored: checkpoint.Checkpoint) -> None:
+        super().load(restored)
+        self.replay.rng = checkpoint.rng_from_state(restored.meta["replay_rng"])
+
+    def open(self, agent: Agent, eval_envs: EnvBatch) -> None:
+        """Reload the replay from episodes/ and open the evaluator."""
+        # Episodes on disk are data even without a checkpoint (a run killed before its first).
+        for episode in self.store.load(limit_steps=self.config.train.replay_capacity):
+            self.replay.add_episode(episode)
+        self.evaluator = Evaluator(agent, eval_envs)
+
+    def on_episode(self, episode: dict, info: dict, env_steps: int) -> None:
+        super().on_episode(episode, info, env_steps)
+        self.replay.add_episode(episode)
+
+    def close(self) -> None:
+        self.evaluator.close()
+        super().close()
+
+
+class HostTrainer(LoopDriver):
+    """A training run of one or more seeds in one process (new or resumed).
+
+    ``configs`` (one per seed, equal but for ``train.seed``) and ``logdirs`` may be a single
+    config and directory. The seeds train in lockstep: their states are stacked and updated by
+    one vmapped program, their envs collect together, and each seed keeps its own replay, PRNG
+    stream, logs and checkpoints. :meth:`run` trains to the end.
+    """
+
+    def __init__(self, configs: Config | Sequence[Config], logdirs: Path | Sequence[Path], *,
+                 make_envs: MakeEnvs = make_env_batch, progress: bool = True, out=print):
+        self._started = time.monotonic()
+        configs = [configs] if isinstance(configs, Config) else list(configs)
+        logdirs = [Path(logdirs)] if isinstance(logdirs, str | Path) else list(map(Path, logdirs))
+        check_seed_group(configs, logdirs)
+        self.config, self.out = configs[0], out
+        train, env = self.config.train, self.config.env
+        self.devices = resolve_devices(self.config)
+        mesh_shape(len(configs), self.devices, train.batch)  # raises if the batch cannot split
+        self.runs = [SeedRun(c, d) for c, d in zip(configs, logdirs, strict=True)]
+        eval_envs = [make_envs(c.env, c.train.seed, env.eval_envs, eval=True) for c in configs]
+        spec = eval_envs[0].spec
+        self.agent = Agent(self.config, spec.obs, spec.action_dim, spec.discrete)
+        self._said_no_videos = False
+
+        def restore(run: SeedRun, max_step: int | None):
+            return restore_latest(run.ckpt_dir, self.agent, jax.random.PRNGKey(run.seed),
+                                  max_step)
+
+        restored = restore_seeds(self.runs, restore)
+        self.resumed = restored is not None
+        if restored is None:
+            states = [self.agent.init(jax.random.PRNGKey(run.seed)) for run in self.runs]
+            keys = [jax.random.fold_in(jax.random.PRNGKey(run.seed), 1) for run in self.runs]
+            counters = Counters()
+        else:
+            states, keys = [c.tree["agent"] for c in restored], [c.tree["key"] for c in restored]
+            counters = saved_counters(restored[0])
+            for run, ckpt in zip(self.runs, restored, strict=True):
+                run.load(ckpt)
+        for run, envs in zip(self.runs, eval_envs, strict=True):
+            run.open(self.agent, envs)
+        self.start(counters, progress=progress)
+        self.parallel = Parallel(self.agent, len(self.runs), self.devices)
+        self.state = self.parallel.put_state(stack(states))
+        self.keys = jnp.stack(keys)
+        envs = SeedEnvs([make_envs(run.config.env, env_seed(run.seed, self.counters.agent_steps),
+                                   env.num_envs, eval=False) for run in self.runs])
+        chunk = max(1, train.train_every // env.num_envs)
+        self.collector = Collector(envs, jax.vmap(acting_policy(self.agent, spec, "train")),
+                                   chunk=chunk, on_episode=self._on_episode)
+        self.carry = stack([self.agent.initial_carry(env.num_envs)] * len(self.runs))
+        self._first_update = self.counters.updates + 1  # of this process: it compiles
+
+    def describe(self) -> str:
+        """Whether this run resumes, and from where."""
+        per_seed = lambda values: "/".join(str(v) for v in values)
+        if not self.resumed:
+            found = per_seed(run.replay.num_episodes for run in self.runs)
+            found = f" ({found} episodes already in episodes/)" if found.strip("0/") else ""
+            seeds = f" of seeds {group_label(self.seeds)}" if len(self.runs) > 1 else ""
+            return f"starting a new run{seeds}{found}"
+        return (f"resuming from {self.runs[0].checkpoint_path.name}: env step {self.env_steps}, "
+                f"update {self.counters.updates}, replay "
+                f"{per_seed(run.replay.num_steps for run in self.runs)} steps in "
+                f"{per_seed(run.replay.num_episodes for run in self.runs)} episodes")
+
+    def parallel_line(self) -> str | None:
+        if len(self.runs) > 1 or self.parallel.mesh_shape != (1, 1):
+            return self.parallel.describe()
+        return None
+
+    # --- the loop ----------------------------------------------------------------------------
+
+    def _next_keys(self) -> jax.Array:
+        """One fresh key per seed ``[S, 2]`` from each seed's own stream."""
+        self.keys, keys = split_keys(self.keys)
+        return keys
+
+    @property
+    def prefilling(self) -> bool:
+        return self.env_steps < self.config.train.prefill or any(
+            run.replay.num_sequences == 0 for run in self.runs)
+
+    def step(self) -> None:
+        """A chunk of collection, then the updates due."""
+        self.collect()
+        self.train_due()
+
+    def collect(self) -> None:
+        """One chunk of agent steps with the training policy (random while prefilling)."""
+        explore = jnp.full((len(self.runs),), self.prefilling)
+        # counted first, so episodes finishing in this chunk are logged at its end step
+        self.counters.agent_steps += self.collector.chunk * self.collector.envs.num_envs
+        self.carry, _ = self.collector.run((self.state.params, explore), self.carry,
+                                           self._next_keys())
+        self.progress.update(self.env_steps)
+
+    def _on_episode(self, episode: dict, index: int, info: dict) -> None:
+        run = self.runs[index // self.collector.envs.num_envs]
+        run.on_episode(episode, info, self.env_steps)
+        self._show("ret", {run.seed: info["return"]})
+
+    def train_due(self) -> None:
+        """The updates owed at the train ratio (the first one as soon as prefill ends)."""
+        if self.prefilling:
+            return
+        train = self.config.train
+        if not self.schedule.training:
+            self.schedule.start_training()
+            pretrain = f", {train.pretrain} pretraining updates" if train.pretrain else ""
+            replay = "/".join(str(run.replay.num_steps) for run in self.runs)
+            self.progress.write(
+                f"prefill done at env step {self.env_steps} ({replay} steps in replay); "
+                "compiling the update (once per process; tens of seconds on a CPU)"
+                f"{pretrain}, then training")
+        due = self.schedule.updates_due()
+        while self.counters.updates < due:
+            self.update()
+
+    def update(self) -> None:
+        started = time.monotonic()
+        batch = self.parallel.put_batch([run.replay.sample(self.config.train.batch)
+                                         for run in self.runs])
+        self.state, metrics = self.parallel.train_step(self.state, batch, self._next_keys())
+        metrics = jax.device_get(metrics)
+        per_seed = [{k: v[i] for k, v in metrics.items()} for i in range(len(self.runs))]
+        problems = [non_finite(m, self.counters.updates + 1, self.env_steps) for m in per_seed]
+        if any(problems):
+            per_seed = self._stop_seeds(problems, per_seed)
+        self.counters.updates += 1
+        for run, seed_metrics in zip(self.runs, per_seed, strict=True):
+            run.window.append(seed_metrics)
+        if self.counters.updates == self._first_update:
+            self.progress.write(
+                f"update {self.counters.updates} took {time.monotonic() - started:.0f} s with "
+                f"its compilation ({time.monotonic() - self._started:.0f} s after start)")
+        # the latest update's losses on the bar, between the averaged log lines
+        self.progress.show({"upd": self.counters.updates})
+        for short, key in PER_UPDATE.items():
+            if key in per_seed[0]:
+                self._show(short, {run.seed: m[key]
+                                   for run, m in zip(self.runs, per_seed, strict=True)})
+
+    def _stop_seeds(self, problems: list[str | None], per_seed: list[dict]) -> list[dict]:
+        """Stop the seeds whose update was non-finite (their state is not kept); the others go
+        on. Raises NonFiniteLossError when none is left. Returns the metrics of those kept."""
+        keep = self._stop_runs(problems)
+        self.collector.drop_seeds(keep)
+        try:
+            self.parallel = Parallel(self.agent, len(keep), self.devices)
+        except ConfigError:  # the batch no longer splits over the devices left to each seed
+            self.parallel = Parallel(self.agent, len(keep), math.gcd(len(keep), self.devices))
+        self.state = self.parallel.put_state(take(self.state, keep))
+        self.keys, self.carry = self.keys[jnp.asarray(keep)], take(self.carry, keep)
+        return [per_seed[i] for i in keep]
+
+    def report_log(self, records: list[dict], shared: dict) -> None:
+        shown = {"ret": "return", **PER_UPDATE, "rew": "wm/reward_loss", "kl": "wm/kl",
+                 "actor": "actor/loss", "critic": "critic/loss"}
+        shown = {short: [r.get(key, math.nan) for r in records] for short, key in shown.items()
+                 if any(key in r for r in records)}
+        for short, values in shown.items():
+            self._show(short, dict(zip(self.seeds, values, strict=True)))
+        if not self.progress.enabled:  # a line per log instead of the bar
+            parts = [f"updates {self.counters.updates}",
+                     f"{shared['env_steps_per_s']:.1f} steps/s",
+                     *(f"{short} " + "/".join(f"{v:.3g}" for v in values)
+                       for short, values in shown.items())]
+            self.progress.write(f"train env step {self.env_steps:>9}: " + ", ".join(parts))
+
+    def eval_episodes(self) -> list[tuple[list[dict], dict]]:
+        """``train.eval_episodes`` episodes of each seed's actor mode in its eval envs."""
+        keys = self._next_keys()
+        results = []
+        for i, run in enumerate(self.runs):
+            infos, episodes = run.evaluator.run(take(self.state.params, i),
+                                                self.config.train.eval_episodes, keys[i])
+            results.append((infos, episodes[0]))
+        return results
+
+    def videos(self, step: int, recorded: list[dict]) -> None:
+        """Each seed's eval and open-loop videos of its first eval episode; for observations
+        without images, a note (once per process) instead."""
+        if not has_video(recorded[0]):
+            if not self._said_no_videos:
+                self.progress.write(f"no videos: the observations of {self.config.env.task} "
+                                    f"have no image (keys {', '.join(self.agent.obs_shape.keys)})")
+                self._said_no_videos = True
+            return
+        keys = self._next_keys()
+        for i, (run, episode) in enumerate(zip(self.runs, recorded, strict=True)):
+            run.logger.video("eval", step, episode[IMAGE_KEY])
+            frames = open_loop_video(self.config, take(self.state.params["wm"], i), episode,
+                                     keys[i])
+            if frames is not None:
+                run.logger.video("open_loop", step, frames, fps=10)
+
+    def checkpoint_of(self, index: int) -> tuple[dict, dict]:
+        tree = checkpoint_tree(take(self.state, index), self.keys[index])
+        return tree, {"replay_rng": checkpoint.rng_state(self.runs[index].replay.rng)}
+
+    def close_loop(self) -> None:
+        self.collector.close()

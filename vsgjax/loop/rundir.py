@@ -1,0 +1,175 @@
+"""The run directory: its file names, and writing and reading them (one seed, one directory).
+
+    config.json          the resolved config (only ``train.*`` may change on resume)
+    metrics.jsonl        train/episode/eval scalars, one line per log step (and TensorBoard)
+    scores.jsonl         the learning curve ``{"task", "method", "seed", "xs", "ys"}``
+    eval_episodes.jsonl  one line per evaluation episode ``{"step", "episode", **info}``
+    checkpoints/         ``ckpt-<env step>.ckpt`` (:mod:`vsgjax.data.checkpoint`)
+    episodes/            every finished training episode as MCAP (:mod:`vsgjax.data.replay`)
+    videos/              eval and open-loop videos (image tasks)
+
+Training writes it (:class:`RunWriter`); evaluation, ``vsgjax.load`` and the experiments'
+launcher and report read it (:class:`RunDir`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from vsgjax.config import Config, ConfigError, config_changes, from_dict, to_dict
+from vsgjax.data import checkpoint
+from vsgjax.data.replay import EpisodeStore
+from vsgjax.loop.logger import Logger, truncate_metrics
+from vsgjax.loop.schedule import Counters
+
+CONFIG_FILE = "config.json"
+METRICS_FILE = "metrics.jsonl"
+SCORES_FILE = "scores.jsonl"
+EVAL_EPISODES_FILE = "eval_episodes.jsonl"
+CHECKPOINTS_DIR = "checkpoints"
+EPISODES_DIR = "episodes"
+VIDEOS_DIR = "videos"
+KEEP_CHECKPOINTS = 3
+# the ``method`` of scores.jsonl: the names of the paper's curves
+METHOD_NAMES = {"dreamerv1": "DreamerV1", "dreamerv2": "DreamerV2", "vsg": "VSG",
+                "svsg": "SVSG", "ssm": "SSM"}
+
+
+def json_safe(record: dict) -> dict:
+    """NaN/inf (e.g. 'never visited' discovery metrics) become null in JSON files."""
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in record.items()}
+
+
+def episode_records(infos: list[dict], step: int) -> list[dict]:
+    """One JSON-able record per evaluation episode: ``{"step", "episode", **info}``."""
+    return [json_safe({"step": step, "episode": index, **info})
+            for index, info in enumerate(infos)]
+
+
+class RunDir:
+    """Reading a run directory: paths, config, checkpoints, episode files, scores."""
+
+    def __init__(self, logdir: str | Path):
+        self.logdir = Path(logdir)
+        self.ckpt_dir = self.logdir / CHECKPOINTS_DIR
+        self.episodes_dir = self.logdir / EPISODES_DIR
+
+    def path(self, name: str) -> Path:
+        return self.logdir / name
+
+    def has_config(self) -> bool:
+        return self.path(CONFIG_FILE).exists()
+
+    def read_config_dict(self) -> dict:
+        return json.loads(self.path(CONFIG_FILE).read_text())
+
+    def load_config(self) -> Config:
+        if not self.has_config():
+            raise FileNotFoundError(f"{self.path(CONFIG_FILE)} not found: is {self.logdir} a "
+                                    "training log directory?")
+        return from_dict(self.read_config_dict())
+
+    def checkpoints(self) -> list[tuple[int, Path]]:
+        """``(env step, path)`` of every checkpoint, oldest first."""
+        return checkpoint.list_checkpoints(self.ckpt_dir)
+
+    def episode_paths(self) -> list[Path]:
+        """The episode files, oldest first."""
+        return sorted(self.episodes_dir.glob("*.mcap")) if self.episodes_dir.is_dir() else []
+
+    def read_scores(self) -> dict | None:
+        path = self.path(SCORES_FILE)
+        return json.loads(path.read_text()) if path.exists() else None
+
+
+class RunWriter(RunDir):
+    """Writing one seed's run directory during training (either loop): config, logs, scores,
+    eval records, episode files, checkpoints."""
+
+    replay_steps = 0  # steps in the seed's replay (the trainer keeps it current)
+
+    def __init__(self, config: Config, logdir: Path):
+        super().__init__(logdir)
+        self.config, self.seed = config, config.train.seed
+        self.logdir.mkdir(parents=True, exist_ok=True)
+        self._check_config()
+        self.store = EpisodeStore(self.episodes_dir)
+        self.scores: dict = {"xs": [], "ys": []}
+        self.episodes = 0
+        self.checkpoint_path: Path | None = None
+        self.window: list[dict] = []  # metrics of the updates since the last log
+        self.window_episodes: list[dict] = []
+
+    def _check_config(self) -> None:
+        """A logdir keeps its model and env config; only ``train.*`` may change on resume."""
+        if not self.has_config() or not self.checkpoints():
+            return
+        changed = config_changes(self.read_config_dict(), to_dict(self.config))
+        if changed:
+            raise ConfigError(f"{self.logdir} holds a run with a different config ("
+                              + "; ".join(changed) + "); use another --logdir to start a new run")
+
+    def load(self, restored: checkpoint.Checkpoint) -> None:
+        self.scores = restored.meta["scores"]
+        self.episodes = restored.meta["counters"].get("episodes", 0)
+        self.checkpoint_path = restored.path
+
+    def open_logs(self, env_steps: int) -> None:
+        """Write config and scores, open the logs (dropping records after ``env_steps``)."""
+        checkpoint.atomic_write(self.path(CONFIG_FILE),
+                                json.dumps(to_dict(self.config), indent=2).encode())
+        # Records an interrupted run wrote after the restored step are dropped.
+        self.logger = Logger(self.logdir, resume_step=env_steps, metrics_file=METRICS_FILE,
+                             video_dir=VIDEOS_DIR)
+        truncate_metrics(self.path(EVAL_EPISODES_FILE), env_steps)
+        self.write_scores()
+
+    def write_scores(self) -> None:
+        record = {"task": self.config.env.task, "method": METHOD_NAMES[self.config.model.name],
+                  "seed": str(self.seed), **self.scores}
+        checkpoint.atomic_write(self.path(SCORES_FILE), (json.dumps(record) + "\n").encode())
+
+    def on_episode(self, episode: dict, info: dict, env_steps: int) -> None:
+        self.store.write(episode)
+        self.episodes += 1
+        self.window_episodes.append(info)
+        self.logger.scalars(env_steps, info, prefix="episode")
+
+    def log(self, env_steps: int, shared: dict) -> dict:
+        """Write the train record of this log interval (means over its updates); returns it."""
+        record = {**shared, "episodes": self.episodes, "replay_steps": self.replay_steps}
+        if self.window:
+            record.update({k: float(np.mean([m[k] for m in self.window])) for k in self.window[0]})
+        if self.window_episodes:
+            record["return"] = float(np.mean([e["return"] for e in self.window_episodes]))
+        self.logger.scalars(env_steps, record, prefix="train")
+        self.window, self.window_episodes = [], []
+        return record
+
+    def record_eval(self, step: int, infos: list[dict], summary: dict) -> None:
+        self.logger.scalars(step, summary, prefix="eval")
+        with open(self.path(EVAL_EPISODES_FILE), "a") as file:
+            for record in episode_records(infos, step):
+                file.write(json.dumps(record) + "\n")
+        self.scores["xs"].append(float(step))
+        self.scores["ys"].append(summary["return"])
+        self.write_scores()
+
+    def save(self, env_steps: int, counters: Counters, tree: dict, **meta) -> None:
+        meta = {"counters": {**dataclasses.asdict(counters), "episodes": self.episodes},
+                "scores": self.scores, **meta}
+        self.checkpoint_path = checkpoint.save(self.ckpt_dir, env_steps, tree, meta,
+                                               keep=KEEP_CHECKPOINTS)
+
+    def last_good_checkpoint(self) -> str:
+        last = checkpoint.latest(self.ckpt_dir)
+        return f"the last good checkpoint is {last}" if last else "no checkpoint was saved yet"
+
+    def close(self) -> None:
+        self.logger.close()

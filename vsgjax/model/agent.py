@@ -1,0 +1,192 @@
+"""The agent: one jitted update of world model, actor and critic, and jitted acting.
+
+    agent = Agent(config, obs_shape=(64, 64, 3), action_dim=2, discrete=False)
+    # or obs_shape={"vector": (24,)} (an ObsSpec or {key: shape}; see vsgjax.model.observations)
+    state = agent.init(key)                                   # AgentState pytree
+    state, metrics = agent.train_step(state, batch, key)      # batch: the [B, T] sequence dict
+    carry = agent.initial_carry(num_envs)
+    carry, action = agent.policy_step(state.params, carry, obs, key, mode="train")
+
+``Agent`` is a frozen dataclass of hashable fields, so its methods are jitted with ``self`` as a
+static argument: equal agents share compiled code. Behaviour learning is in
+:mod:`vsgjax.model.behaviour` (with the timestep-alignment diagram).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from vsgjax.config import Config
+from vsgjax.model import behaviour as bhv
+from vsgjax.model.observations import ObsSpec, obs_spec
+from vsgjax.model.optim import agent_optimizers
+from vsgjax.model.world_model import WorldModel
+
+POLICY_MODES = ("train", "eval")
+
+
+class AgentState(NamedTuple):
+    """Everything training updates (a pytree; checkpoint it whole).
+
+    ``params``: ``{"wm", "actor", "critic", "slow_critic"}``; ``opt``: optimizer states
+    ``{"wm", "actor", "critic"}``; ``step``: number of completed updates (int32 scalar).
+    """
+
+    params: dict
+    opt: dict
+    step: jax.Array
+
+
+Carry = tuple[Any, jax.Array]  # (posterior states [N, ...], previous actions [N, A])
+
+
+@dataclass(frozen=True)
+class Agent:
+    """World model + imagination actor-critic for one observation spec and action space.
+
+    ``obs_shape``: an image shape ``(64, 64, C)``, a ``{key: shape}`` dict or an
+    :class:`~vsgjax.model.observations.ObsSpec`; stored as the ObsSpec.
+    """
+
+    config: Config
+    obs_shape: ObsSpec | Mapping[str, Sequence[int]] | Sequence[int]
+    action_dim: int
+    discrete: bool
+
+    def __post_init__(self):
+        object.__setattr__(self, "obs_shape", obs_spec(self.obs_shape))
+
+    @functools.cached_property
+    def world_model(self) -> WorldModel:
+        return WorldModel(self.config, self.obs_shape, self.action_dim)
+
+    @property
+    def behaviour(self) -> bhv.Behaviour:
+        return bhv.Behaviour.from_config(self.config, self.action_dim, self.discrete)
+
+    @property
+    def optimizers(self) -> dict[str, optax.GradientTransformation]:
+        return agent_optimizers(self.config)
+
+    @functools.partial(jax.jit, static_argnums=0)
+    def init(self, key: jax.Array) -> AgentState:
+        """Fresh parameters (the slow critic a copy of the critic), optimizer states, step 0.
+
+        Jitted: one compiled program instead of hundreds of op-by-op initialisers.
+        """
+        wm_key, ac_key = jax.random.split(key)
+        params = {"wm": self.world_model.init(wm_key),
+                  **self.behaviour.init(ac_key, self.world_model.dynamics.feat_dim)}
+        opt = {name: optimizer.init(params[name]) for name, optimizer in self.optimizers.items()}
+        return AgentState(params, opt, jnp.zeros((), jnp.int32))
+
+    # --- training ------------------------------------------------------------------------------
+
+    def world_fns(self, wm_params: dict) -> bhv.WorldFns:
+        """The world-model callables behaviour learning imagines with (per start state)."""
+        wm = self.world_model
+        dyn = wm.dynamics
+
+        def rollout(policy, start, key, steps):
+            states, actions = dyn.imagine(wm_params["dynamics"], policy, start, steps, key)
+            return jax.vmap(dyn.feat)(states), actions
+
+        return bhv.WorldFns(rollout=rollout,
+                            reward=lambda feat: wm.reward_mean(wm_params, feat),
+                            discount=lambda feat: wm.discount(wm_params, feat))
+
+    @functools.partial(jax.jit, static_argnums=0)
+    def train_step(self, state: AgentState, batch: dict, key: jax.Array):
+        """One update of world model, then actor, then critic, with the slow-critic schedule.
+
+        The world model trains on ``batch``; its posterior states (stop-gradient; see
+        :func:`vsgjax.model.behaviour.start_states` for which) start the imagination, which uses the
+        freshly updated world model. The slow critic is copied from the critic at the start of
+        the update (``ac.alignment=release``) or after it (``next_state``). Returns
+        ``(state, metrics)`` with keys ``wm/*``, ``actor/*``, ``critic/*`` and ``imag/*``.
+        """
+        wm_key, ac_key = jax.random.split(key)
+        params, opt, optimizers = state.params, dict(state.opt), self.optimizers
+        behaviour, every = self.behaviour, self.config.ac.slow_critic_every
+        grad_fn = jax.value_and_grad(self.world_model.loss, has_aux=True)
+        (_, (wm_metrics, posts)), grads = grad_fn(params["wm"], batch, wm_key)
+        wm_params, opt["wm"] = _apply(optimizers["wm"], grads, opt["wm"], params["wm"])
+
+        slow_critic = params["slow_critic"]
+        if behaviour.release:
+            slow_critic = bhv.update_slow_critic(params["critic"], slow_critic, state.step, every)
+        starts, start_continue = bhv.start_states(posts, batch["is_terminal"], behaviour,
+                                                  drop_last=self.config.wm.discount_head)
+        keys = jax.random.split(ac_key, start_continue.shape[0])
+        grad_fn = jax.value_and_grad(bhv.actor_loss, has_aux=True)
+        (_, (imagined, ac_metrics)), actor_grads = grad_fn(
+            params["actor"], behaviour, params["critic"], slow_critic,
+            self.world_fns(wm_params), starts, start_continue, keys)
+        actor, opt["actor"] = _apply(optimizers["actor"], actor_grads, opt["actor"],
+                                     params["actor"])
+
+        grad_fn = jax.value_and_grad(bhv.critic_loss, has_aux=True)
+        (_, critic_metrics), critic_grads = grad_fn(params["critic"], behaviour, imagined)
+        critic, opt["critic"] = _apply(optimizers["critic"], critic_grads, opt["critic"],
+                                       params["critic"])
+        if not behaviour.release:
+            slow_critic = bhv.update_slow_critic(critic, slow_critic, state.step, every)
+
+        metrics = {f"wm/{name}": value for name, value in wm_metrics.items()}
+        metrics.update(ac_metrics, **critic_metrics)
+        metrics.update({"wm/grad_norm": optax.tree.norm(grads),
+                        "actor/grad_norm": optax.tree.norm(actor_grads),
+                        "critic/grad_norm": optax.tree.norm(critic_grads)})
+        new_params = {"wm": wm_params, "actor": actor, "critic": critic,
+                      "slow_critic": slow_critic}
+        return AgentState(new_params, opt, state.step + 1), metrics
+
+    # --- acting --------------------------------------------------------------------------------
+
+    def initial_carry(self, num_envs: int) -> Carry:
+        """Zero posterior states and zero previous actions for ``num_envs`` environments."""
+        zeros = lambda x: jnp.zeros((num_envs,) + x.shape, x.dtype)
+        return (jax.tree.map(zeros, self.world_model.dynamics.initial()),
+                jnp.zeros((num_envs, self.action_dim), jnp.float32))
+
+    @functools.partial(jax.jit, static_argnums=0, static_argnames="mode")
+    def policy_step(self, params: dict, carry: Carry, obs: dict, key: jax.Array, *,
+                    mode: str = "train") -> tuple[Carry, jax.Array]:
+        """One acting step for a batch of N environments.
+
+        ``obs``: the spec's keys (``image`` [N, H, W, C] uint8, vectors [N, D] float32) and
+        ``is_first`` [N] bool (other keys ignored).
+        Where ``is_first``, the carried state and previous action are zeroed before the
+        posterior step. ``mode="train"`` samples the actor, ``"eval"`` takes its mode (the
+        latent state and VSG's gates are sampled in both, as in the released code). Actions are
+        float32 [N, A]: in [-1, 1] when continuous, one-hot when discrete. Returns
+        ``((posts, action), action)``.
+        """
+        if mode not in POLICY_MODES:
+            raise ValueError(f"unknown policy mode {mode!r}; valid: {', '.join(POLICY_MODES)}")
+        dyn, states, prev_actions = self.world_model.dynamics, *carry
+        state_key, action_key = jax.random.split(key)
+        embeds = self.world_model.encode(params["wm"], obs)
+
+        def posterior(state, action, is_first, embed, step_key):
+            state, action = dyn.reset(state, action, is_first)
+            return dyn.obs_step(params["wm"]["dynamics"], state, action, embed, step_key)[0]
+
+        keys = jax.random.split(state_key, embeds.shape[0])
+        posts = jax.vmap(posterior)(states, prev_actions, obs["is_first"], embeds, keys)
+        action = self.behaviour.act(params["actor"], jax.vmap(dyn.feat)(posts), action_key, mode)
+        action = jax.lax.stop_gradient(action)
+        return (posts, action), action
+
+
+def _apply(optimizer: optax.GradientTransformation, grads, opt_state, params):
+    """One optimizer step -> (new params, new optimizer state)."""
+    updates, opt_state = optimizer.update(grads, opt_state, params)
+    return optax.apply_updates(params, updates), opt_state
