@@ -12,8 +12,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from experiments.launch.jobs import LOG_FILE, REPO
-from vsgjax import checkpoint
-from vsgjax.host import allocator_env
+from vsgjax.data import checkpoint
+from vsgjax.loop.allocator import allocator_env
 
 STOP_TIMEOUT_S = 600  # how long a stopped job may take to save its checkpoint
 

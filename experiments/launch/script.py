@@ -10,7 +10,7 @@ from pathlib import Path
 
 from experiments.launch.jobs import LOG_FILE, REPO, Job
 from experiments.spec import Experiment
-from vsgjax import checkpoint
+from vsgjax.data import checkpoint
 
 COMMANDS_FILE = "commands.txt"
 SBATCH_FILE = "sbatch.sh"

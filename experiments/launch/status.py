@@ -13,8 +13,8 @@ from pathlib import Path
 from experiments.launch.jobs import Job
 from experiments.rundir import CHECKPOINTS_DIR, CONFIG_FILE, METRICS_FILE, SCORES_FILE
 from experiments.spec import Run
-from vsgjax import checkpoint
 from vsgjax.config import config_changes, to_dict
+from vsgjax.data import checkpoint
 
 
 @dataclass

@@ -10,7 +10,7 @@ import pytest
 from experiments import report
 from experiments.report import REFERENCE_DIR, Context, ReportWarning
 from experiments.spec import METHOD_NAMES, load_experiment
-from vsgjax.train import METHOD_NAMES as TRAINER_METHOD_NAMES
+from vsgjax.loop.rundir import METHOD_NAMES as TRAINER_METHOD_NAMES
 
 BBS_REFERENCE = json.loads((REFERENCE_DIR / "vsg_paper_bbs.json").read_text())
 DISCOVERY_REFERENCE = json.loads((REFERENCE_DIR / "vsg_paper_discovery.json").read_text())
