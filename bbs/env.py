@@ -1,4 +1,4 @@
-"""``BringBackShapesEnv``: the gymnasium environment (spec /work/shared/spec/bbs.md).
+"""``BringBackShapesEnv``: the gymnasium environment (docs/bbs.md).
 
 One agent step repeats the action for ``action_repeat`` physics sub-steps (dt = 1/60) and
 returns the summed reward (objects scored). The observation is the agent's view, drawn once per

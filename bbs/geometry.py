@@ -1,4 +1,4 @@
-"""Arena geometry, entity shapes and colours of BringBackShapes (spec section 3.1).
+"""Arena geometry, entity shapes and colours of BringBackShapes.
 
 Coordinates are world coordinates that double as screen pixels: x points right, y points down.
 Only the playable interior grows with the arena scale; walls, goal width, object sizes and the

@@ -1,4 +1,4 @@
-"""pymunk physics of BringBackShapes (spec sections 3.1, 3.4).
+"""pymunk physics of BringBackShapes.
 
 One ``Simulation`` holds one episode's space. A physics sub-step is split in two calls so that
 the environment can draw the scene between them, as the original does (it draws before

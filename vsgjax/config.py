@@ -5,12 +5,12 @@ A config is built from three names and a list of overrides::
     make_config(task="bbs_basic", model="vsg", size="small", overrides=["wm.kl_scale=0.3"])
 
 * the *domain* (``bbs``, ``dmc``, ``atari``) comes from the task name's prefix and selects the
-  column of the paper's hyperparameter table (``../shared/spec/model.md`` section 5);
+  column of the paper's hyperparameter table (docs/models.md);
 * the *model* (``dreamerv1``, ``dreamerv2``, ``vsg``, ``svsg``, ``ssm``) selects the latent
   dynamics and its model-specific defaults;
 * the *size* (``paper``, ``small``, ``debug``) scales the networks: ``paper`` is the table,
   ``small`` is CPU-friendly (smaller networks, and batch 8 x 32 every 2 agent steps so that
-  a 2-core CPU updates about once a second), ``debug`` is for tests.
+  a small CPU updates about once a second), ``debug`` is for tests.
 
 Unknown names, unknown keys and values of the wrong type are errors that name the bad value and
 list what is valid.
@@ -27,13 +27,13 @@ from dataclasses import dataclass, field, fields, replace
 MODELS = ("dreamerv1", "dreamerv2", "vsg", "svsg", "ssm")
 SIZES = ("paper", "small", "cpu", "debug")
 DOMAINS = ("bbs", "dmc", "atari")
-ALIGNMENTS = ("release", "next_state")  # ac.alignment: see vsgjax/behaviour.py
+ALIGNMENTS = ("release", "next_state")  # ac.alignment: see vsgjax/model/behaviour.py
 ACTOR_GRADS = ("auto", "dynamics", "reinforce", "both")
-EPS_PLACEMENTS = ("release", "optax")  # optim.eps_placement: see vsgjax/optim.py
-WEIGHT_DECAYS = ("release", "adamw")  # optim.weight_decay: see vsgjax/optim.py
+EPS_PLACEMENTS = ("release", "optax")  # optim.eps_placement: see vsgjax/model/optim.py
+WEIGHT_DECAYS = ("release", "adamw")  # optim.weight_decay: see vsgjax/model/optim.py
 PRECISIONS = ("float32", "bfloat16")  # model.precision: the dtype of matmuls and convolutions
-ENCODERS = ("auto", "cnn", "mlp")  # wm.encoder: see vsgjax/world_model.py (check_encoders)
-LOOPS = ("auto", "host", "device")  # train.loop: see vsgjax/device_loop.py
+ENCODERS = ("auto", "cnn", "mlp")  # wm.encoder: see vsgjax/model/world_model.py (check_encoders)
+LOOPS = ("auto", "host", "device")  # train.loop: see vsgjax/loop/device_program.py
 # String keys whose values are names from a fixed list (checked when a config is built).
 CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS,
            "optim.eps_placement": EPS_PLACEMENTS, "optim.weight_decay": WEIGHT_DECAYS,
@@ -46,7 +46,7 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Latent dynamics (spec sections 1-2)."""
+    """Latent dynamics."""
 
     name: str = "vsg"
     deter: int = 1024  # deterministic state size (0 for the purely stochastic svsg / ssm)
@@ -64,7 +64,7 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class WorldModelConfig:
-    """Encoder, decoder, heads, world-model loss and its optimizer (spec section 3)."""
+    """Encoder, decoder, heads, world-model loss and its optimizer."""
 
     # "auto": the CNN for the image key, the MLP for vector keys; "cnn" / "mlp": one of the two
     # only (an observation spec with keys it cannot encode is an error)
@@ -93,7 +93,7 @@ class WorldModelConfig:
 
 @dataclass(frozen=True)
 class BehaviourConfig:
-    """Imagination actor-critic (spec section 4)."""
+    """Imagination actor-critic."""
 
     alignment: str = "release"  # "release" (the authors' ImagBehavior) or "next_state"
     horizon: int = 15  # release: H states per start, the start included; next_state: H steps
@@ -115,7 +115,7 @@ class BehaviourConfig:
 
 @dataclass(frozen=True)
 class OptimConfig:
-    """The update rule shared by the world-model, actor and critic optimizers (vsgjax/optim.py).
+    """The update rule shared by the world-model, actor and critic optimizers (model/optim.py).
 
     Rates stay in their sections (``wm.lr``, ``wm.eps``, ``wm.weight_decay``, ``ac.*``).
     """

@@ -1,4 +1,4 @@
-"""Agent update and acting costs (``vsgjax/agent.py``) at the ``small`` size on BBS shapes.
+"""Agent update and acting costs (``vsgjax/model/agent.py``) at the ``small`` size on BBS shapes.
 
 Per model: the jitted world-model-only update (``vsgjax.model.api.train_step``) against the agent's
 joint update (world model + imagination actor-critic), so the behaviour-learning share is
@@ -82,7 +82,7 @@ def bench_model(model: str) -> dict:
 def markdown(rows: list[dict]) -> str:
     load = " ".join(f"{x:.1f}" for x in os.getloadavg())
     lines = [
-        "## Agent update (`vsgjax/agent.py`, small size, BBS batch 16 x 50)",
+        "## Agent update (`vsgjax/model/agent.py`, small size, BBS batch 16 x 50)",
         "",
         f"Median of {REPEATS} calls after compilation; wall / process-CPU seconds. `wm` is the "
         "world-model update alone (`api.train_step`), `agent` the joint update (world model + "

@@ -200,7 +200,7 @@ def load_average() -> str:
 
 def main() -> None:
     chunk = DEFAULT_CHUNK
-    lines = ["## Collection (`vsgjax/collect.py`, `vsgjax/envs/`)", "",
+    lines = ["## Collection (`vsgjax/data/collect.py`, `vsgjax/envs/`)", "",
              "Bare env step rates, one env in one process, random actions:", "",
              "| task | agent steps/s | env steps/s (x action repeat) |", "|---|---|---|"]
     for task, steps in (("bbs_basic", 300), ("dmc_walker_walk", 30), ("atari_pong", 300)):

@@ -4,7 +4,7 @@ Both loops train the same VSG (``small`` and ``debug``; ``--sizes`` picks) with 
 on ``mjx_cartpole_swingup``; only ``train.loop`` differs:
 
 * ``device``: one jitted call per episode of every env (policy, MJX steps, replay, updates);
-* ``host``: the host loop driving the same MJX envs through ``vsgjax/envs/mjx/host.py`` (one
+* ``host``: the host loop driving the same MJX envs through ``vsgjax/envs/mjx/vector_env.py`` (one
   jitted vmapped env step per agent step, the policy and the updates jitted apart, the replay
   and the episode files in Python).
 

@@ -1,4 +1,4 @@
-"""Mixed precision (``model.precision``, ``vsgjax/precision.py``): one jitted agent update
+"""Mixed precision (``model.precision``, ``vsgjax/model/precision.py``): one jitted agent update
 (``Agent.train_step``: world model + imagination actor-critic) at the ``small`` size, float32
 against bfloat16, on BBS shapes (batch 16 x 50 of 64x64x3 images).
 

@@ -296,7 +296,7 @@ def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: lis
         f"Reference: a 2048x2048 float32 matmul in JAX reaches **{rate / 1e9:.1f} GFLOP/s**.",
         "",
         "Host allocator of every child process: "
-        + ("mimalloc (`vsgjax/host.py`)." if updates and updates[0]["mimalloc"]
+        + ("mimalloc (`vsgjax/loop/allocator.py`)." if updates and updates[0]["mimalloc"]
            else "the C library's (mimalloc is not installed)."),
         "",
         "FLOPs = matmul + convolution FLOPs of the update counted from its jaxpr, every scan "
@@ -332,7 +332,8 @@ def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: lis
                          f"{100 * achieved / rate:.0f}% |")
     if allocator:
         lines += ["", "Host allocator: the same update in a process on glibc's malloc (no "
-                  "`LD_PRELOAD`) against mimalloc above (`vsgjax/host.py`); kernel time is the "
+                  "`LD_PRELOAD`) against mimalloc above (`vsgjax/loop/allocator.py`); kernel time "
+                  "is the "
                   "process's system CPU time (both cores), mostly zero-filling faulted pages.", "",
                   "| model | size | update (s) glibc | mimalloc | speed-up | page faults / update "
                   "glibc | mimalloc | kernel s / update glibc | mimalloc |",

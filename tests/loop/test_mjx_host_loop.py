@@ -1,7 +1,7 @@
 """The host loop on MJX tasks (vsgjax/envs/mjx/host.py through vsgjax/collect.py EnvBatch).
 
 A debug VSG on ``mjx_cartpole_balance`` with a 40-step time limit (20 agent steps per episode)
-and 2 envs, the setting of tests/test_device_loop.py.
+and 2 envs, the setting of tests/loop/test_device_loop.py.
 """
 
 from __future__ import annotations

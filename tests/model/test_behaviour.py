@@ -1,7 +1,7 @@
 """Behaviour learning (vsgjax.model.behaviour): λ-returns, weights, slow critic, gradients.
 
 The world model is replaced by a tiny differentiable toy (feature = state vector) so every test
-compiles in seconds; tests/test_agent.py runs the real models.
+compiles in seconds; tests/model/test_agent.py runs the real models.
 """
 
 import functools

@@ -7,7 +7,7 @@ lowered to the same StableHLO text as before, checked once by hand).
 bfloat16 must run every model's jitted agent update with float32 parameters, optimizer state
 and gates that are exactly 0/1, with every matmul in bfloat16 and metrics close to float32's.
 Each (model, precision) update compiles once (``_update``) and serves every test of it. As in
-tests/test_agent.py, VSG and DreamerV2 run by default; the other three models' bfloat16 updates
+test_agent.py, VSG and DreamerV2 run by default; the other three models' bfloat16 updates
 are marked slow (``make test`` runs them, ``make test-fast`` skips them).
 """
 
@@ -68,7 +68,7 @@ BF16_DOT = re.compile(r"stablehlo\.dot_general.*\(tensor<[^>]*xbf16>, tensor<[^>
 
 
 def replay_batch(action_dim: int, discrete: bool, seed: int = 0) -> dict:
-    """tests/test_agent.py's batch: episode starts at t = 0 (and mid-sequence), one terminal."""
+    """test_agent.py's batch: episode starts at t = 0 (and mid-sequence), one terminal."""
     rng = np.random.default_rng(seed)
     is_first = np.zeros((BATCH, LENGTH), bool)
     is_first[:, 0] = is_first[1, 2] = True

@@ -141,8 +141,7 @@ class SeedEnvs:
     """The env batches of S seeds stepped as one: observations and actions ``[S, N, ...]``.
 
     Finished episodes are reported with the flat index ``seed * N + env``. The seeds' envs step
-    one batch after the other; ``experiments/bench/bench_seeds.py`` measures that collection
-    is a small part of the loop's time next to the S-seed update.
+    one batch after the other.
     """
 
     def __init__(self, batches: Sequence[EnvBatch]):

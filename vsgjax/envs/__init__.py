@@ -34,7 +34,7 @@ from vsgjax.keys import IMAGE_DTYPE, VECTOR_DTYPE
 from vsgjax.model.observations import ObsSpec
 
 TASK_PATTERNS = ("bbs_<variant>", "dmc_<domain>_<task>", "atari_<game>", "mjx_<domain>_<task>")
-DEVICE_FAMILIES = ("mjx",)  # tasks that step inside JAX (vsgjax/device_loop.py), not gymnasium
+DEVICE_FAMILIES = ("mjx",)  # tasks that step inside JAX (loop/device_program.py), not gymnasium
 
 
 def parse_task(task: str) -> tuple[str, tuple[str, ...]]:

@@ -50,7 +50,8 @@ def allocator_active() -> bool:
 def allocator_line() -> str:
     """One line for a run's header: which allocator this process uses."""
     if allocator_active():
-        return "host allocator: mimalloc, reusing freed memory for 100 ms (vsgjax/loop/allocator.py)"
+        return ("host allocator: mimalloc, reusing freed memory for 100 ms "
+                "(vsgjax/loop/allocator.py)")
     return ("host allocator: the C library's (CPU updates run 1.5-2x faster with mimalloc: "
             "start with `env $(python vsgjax/loop/allocator.py) ...`; make does)")
 

@@ -80,8 +80,8 @@ def mesh_shape(num_seeds: int, devices: int, batch: int) -> tuple[int, int]:
 
 def seed_batched(function, num_seeds: int):
     """``function`` over a leading seed axis of every argument and result: ``jax.vmap``, or for
-    one seed the plain function on the squeezed axis (vmap over a size-1 axis made the ``small``
-    update 29% slower on a 2-core CPU: its matmuls become batched ones)."""
+    one seed the plain function on the squeezed axis (vmap over a size-1 axis turns the matmuls
+    into slower batched ones)."""
     if num_seeds > 1:
         return jax.vmap(function)
 

@@ -1,4 +1,4 @@
-"""Open-loop prediction videos (spec section 6): context frames, then imagined frames.
+"""Open-loop prediction videos: context frames, then imagined frames.
 
 For one recorded episode, the world model observes the first ``context`` frames (posterior
 states, decoded as reconstructions), then rolls its prior forward open loop under the episode's

@@ -1,4 +1,4 @@
-"""Gate sparsity loss and gate statistics (spec section 3).
+"""Gate sparsity loss and gate statistics.
 
 ``L_gate = α · max(mean_{B,T} Σ_units KL(Bern(p) ‖ Bern(κ)), free)`` with ``p = σ(logit)``,
 computed from logits with ``log σ`` so saturated gates (``|logit|`` huge) stay finite.
@@ -50,7 +50,7 @@ def _as_batch(gate: jax.Array) -> jax.Array:
 
 
 def gate_statistics(gate: jax.Array, prob: jax.Array) -> dict[str, jax.Array]:
-    """Gate metrics of spec section 3 (all scalars, computed without gradient).
+    """Gate metrics (all scalars, computed without gradient).
 
     * ``gate_units_per_step_{mean,std}``: open units per time step, over (B, T);
     * ``gate_updates_per_unit_{mean,std}``: times each unit opened over a sequence, over (B, D);

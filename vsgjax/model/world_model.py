@@ -1,4 +1,4 @@
-"""The world model: encoder, latent dynamics, decoder and heads, and its loss (spec section 3).
+"""The world model: encoder, latent dynamics, decoder and heads, and its loss.
 
     L = -ln p(x|s) - reward_scale ln p(r|s) [- discount_scale ln p(γ|s)] + L_kl + L_gate
 

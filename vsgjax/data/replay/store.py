@@ -31,11 +31,8 @@ MCAP schema (version 1)
   per-step arrays). float32 values round-trip exactly (float32 -> float64 repr -> float32).
   Foxglove's Plot panel shows e.g. ``/reward.value`` or ``/action.value[0]``.
 
-Why JSON + base64 raw pixels: measured against PNG (``foxglove.CompressedImage``), raw pixels
-in zstd chunks encode faster (up to 3x), decode about as fast, and are smaller on BBS-like
-frames (zstd sees the redundancy between consecutive frames, PNG only within one); see
-``experiments/bench/results/replay.md``.  The non-image channels are tiny, so JSON costs
-little there and keeps every channel readable by Foxglove and any JSON parser.
+Raw pixels in zstd chunks rather than PNG, and JSON for the small channels, keep every
+channel readable by Foxglove and any JSON parser (docs/replay-and-checkpoints.md compares).
 
 Crash safety: a file is built in memory and written with ``vsgjax.data.checkpoint.atomic_write``
 (hidden temp file in the same directory, fsync, ``os.replace``), so a ``*.mcap`` name only

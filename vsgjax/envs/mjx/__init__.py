@@ -18,7 +18,7 @@ Changes to the suite's models (all in ``core.load_model`` or a domain's ``edit``
   size, finger spin's hinge damping).
 
 ``host.MjxVectorEnv`` presents N envs as one gymnasium vector env, for the host training loop
-(``train.loop=host``); the device loop (``vsgjax/device_loop.py``) steps them inside its own
+(``train.loop=host``); the device loop (``vsgjax/loop/device_program.py``) steps them inside its own
 jitted program.
 
 See ``docs/mjx.md`` for the tasks, the measured agreement with dm_control and the API.

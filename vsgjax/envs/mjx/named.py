@@ -20,11 +20,6 @@ def geom(phys: Physics, name: str) -> int:
     return phys.mj.geom(name).id
 
 
-def joint_qpos(phys: Physics, name: str) -> int:
-    """The qpos address of a hinge or slide joint."""
-    return int(phys.mj.joint(name).qposadr[0])
-
-
 def sensor(phys: Physics, data: mjx.Data, name: str) -> jax.Array:
     """The sensor's slice of ``sensordata`` (always a vector)."""
     s = phys.mj.sensor(name)
