@@ -17,7 +17,14 @@ from pathlib import Path
 
 import jax
 
-from vsgjax.config import MODELS, SIZES, Config, ConfigError, make_config
+from vsgjax.config import (
+    MODELS,
+    SIZES,
+    VECTOR_TASK_PREFIX,
+    Config,
+    ConfigError,
+    make_config,
+)
 from vsgjax.envs import TaskError, parse_task, resolve_loop
 from vsgjax.loop.allocator import allocator_line
 from vsgjax.loop.device_trainer import DeviceTrainer
@@ -40,7 +47,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                              "mjx_<domain>_<task>")
     parser.add_argument("--model", default="vsg", help=f"one of {', '.join(MODELS)}")
     parser.add_argument("--size", default="auto",
-                        help=f"auto (small on CPU, paper on GPU) or one of {', '.join(SIZES)}")
+                        help="auto (paper on a GPU; on a CPU cpu for mjx_ tasks, small for the "
+                             f"others) or one of {', '.join(SIZES)}")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--seeds", default=None,
                         help="train several seeds in one process, e.g. 0,1,2 (overrides --seed)")
@@ -55,11 +63,16 @@ def has_gpu() -> bool:
     return any(device.platform == "gpu" for device in jax.devices())
 
 
-def resolve_size(size: str) -> tuple[str, str]:
-    """(size, why): ``auto`` becomes ``paper`` when JAX sees a GPU, else ``small``."""
+def resolve_size(size: str, task: str) -> tuple[str, str]:
+    """(size, why): ``auto`` becomes ``paper`` when JAX sees a GPU, else ``cpu`` for the
+    vector-observation (``mjx_``) tasks and ``small`` for the others."""
     if size != "auto":
         return size, "as requested"
-    return ("paper", "auto: JAX sees a GPU") if has_gpu() else ("small", "auto: no GPU")
+    if has_gpu():
+        return "paper", "auto: JAX sees a GPU"
+    if task.startswith(VECTOR_TASK_PREFIX):
+        return "cpu", "auto: no GPU, vector observations"
+    return "small", "auto: no GPU"
 
 
 def parse_seeds(args: argparse.Namespace) -> tuple[list[int], list[str]]:
@@ -91,7 +104,7 @@ def build_configs(args: argparse.Namespace, seeds: list[int],
                   overrides: list[str]) -> tuple[list[Config], dict[str, str]]:
     """One resolved config per seed and notes on how size and precision were chosen; raises
     ConfigError/TaskError."""
-    size, size_note = resolve_size(args.size)
+    size, size_note = resolve_size(args.size, args.task)
     precision = []
     precision_note = "as requested"
     if not any(item.partition("=")[0].strip() == "model.precision" for item in overrides):

@@ -96,9 +96,11 @@ def test_unknown_task_model_and_key_are_errors_listing_valid_values(capsys):
     assert "train.stepz" in capsys.readouterr().err
 
 
-def test_size_auto_is_small_on_cpu_and_explicit_sizes_pass_through():
-    assert train.resolve_size("auto")[0] == ("paper" if train.has_gpu() else "small")
-    assert train.resolve_size("debug") == ("debug", "as requested")
+def test_size_auto_is_small_or_cpu_on_cpu_and_explicit_sizes_pass_through():
+    gpu = train.has_gpu()
+    assert train.resolve_size("auto", "bbs_basic")[0] == ("paper" if gpu else "small")
+    assert train.resolve_size("auto", "mjx_walker_walk")[0] == ("paper" if gpu else "cpu")
+    assert train.resolve_size("debug", "mjx_walker_walk") == ("debug", "as requested")
 
 
 def test_next_multiple_and_env_seeds():
@@ -191,7 +193,11 @@ def test_training_writes_every_artefact(runs, task):
     for name in ("eval", "open_loop"):
         assert list((logdir / "videos").glob(f"{name}_*.mp4")), name
     scores = read_jsonl(logdir / "scores.jsonl")
-    assert len(scores) == 1 and set(scores[0]) == {"task", "method", "seed", "xs", "ys"}
+    assert len(scores) == 1 and set(scores[0]) == {"task", "method", "seed", "xs", "ys",
+                                                   "wall_s", "cpu_s"}
+    for clock in ("wall_s", "cpu_s"):  # the run's seconds at each evaluation, growing
+        assert len(scores[0][clock]) == len(scores[0]["xs"]), clock
+        assert 0 < scores[0][clock][0] <= scores[0][clock][-1], clock
     assert scores[0]["method"] == "VSG" and scores[0]["task"] == task
     assert scores[0]["xs"][-1] == config["train"]["steps"]
     assert len(scores[0]["xs"]) == len(scores[0]["ys"]) >= 2

@@ -110,6 +110,7 @@ class LoopDriver:
         self.progress = Progress(self.config.train.steps, self.env_steps, enabled=progress)
         self._shown: dict[str, dict[int, float]] = {}  # progress-bar values per seed
         self._last_log_time, self._last_log_step = time.monotonic(), self.env_steps
+        self._clock = (time.monotonic(), 0.0)  # CPU seconds count from the process's start
 
     @property
     def counters(self) -> Counters:
@@ -122,6 +123,13 @@ class LoopDriver:
     @property
     def seeds(self) -> list[int]:
         return [run.seed for run in self.runs]
+
+    def tick(self) -> None:
+        """Charge the wall and CPU seconds since the last tick to every running seed."""
+        now = (time.monotonic(), time.process_time())
+        self.counters.wall_s += (now[0] - self._clock[0]) / len(self.runs)
+        self.counters.cpu_s += (now[1] - self._clock[1]) / len(self.runs)
+        self._clock = now
 
     # --- what a loop adds ----------------------------------------------------------------------
 
@@ -158,6 +166,7 @@ class LoopDriver:
         with checkpoint.StopSignal() as stop:
             while self.env_steps < train.steps and not stop.requested:
                 self.iteration()
+                self.tick()
             if not stop.requested and self.schedule.final_eval_due():
                 self.evaluate()  # the final score
             self.save()
@@ -197,8 +206,10 @@ class LoopDriver:
         the message, and videos when due."""
         step = self.env_steps
         results = self.eval_episodes()
+        self.tick()
+        clocks = {"wall_s": self.counters.wall_s, "cpu_s": self.counters.cpu_s}
         for run, (infos, _) in zip(self.runs, results, strict=True):
-            summary = summarize(infos)
+            summary = {**summarize(infos), **clocks}
             run.record_eval(step, infos, summary)
             self.progress.write(f"{self._prefix(run)}eval  env step {step:>9}: return "
                                 f"{summary['return']:.3f} ± {summary['return_std']:.3f} over "
@@ -212,6 +223,7 @@ class LoopDriver:
 
     def save(self) -> None:
         self.schedule.ckpt_done()
+        self.tick()
         for i, run in enumerate(self.runs):
             tree, meta = self.checkpoint_of(i)
             run.save(self.env_steps, self.counters, tree, **meta)

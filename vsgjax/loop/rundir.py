@@ -2,7 +2,8 @@
 
     config.json          the resolved config (only ``train.*`` may change on resume)
     metrics.jsonl        train/episode/eval scalars, one line per log step (and TensorBoard)
-    scores.jsonl         the learning curve ``{"task", "method", "seed", "xs", "ys"}``
+    scores.jsonl         the learning curve ``{"task", "method", "seed", "xs", "ys", "wall_s",
+                         "cpu_s"}`` (the run's wall and CPU seconds at each evaluation)
     eval_episodes.jsonl  one line per evaluation episode ``{"step", "episode", **info}``
     checkpoints/         ``ckpt-<env step>.ckpt`` (:mod:`vsgjax.data.checkpoint`)
     episodes/            every finished training episode as MCAP (:mod:`vsgjax.data.replay`)
@@ -159,6 +160,8 @@ class RunWriter(RunDir):
                 file.write(json.dumps(record) + "\n")
         self.scores["xs"].append(float(step))
         self.scores["ys"].append(summary["return"])
+        for clock in ("wall_s", "cpu_s"):
+            self.scores.setdefault(clock, []).append(summary[clock])
         self.write_scores()
 
     def save(self, env_steps: int, counters: Counters, tree: dict, **meta) -> None:

@@ -27,6 +27,10 @@ class Counters:
     next_video: int = 0
     last_eval: int = -1  # env step of the latest evaluation
     last_ckpt_updates: int = 0
+    # the run's wall and CPU seconds (all threads) so far; a process training S seeds charges
+    # each 1/S of its time
+    wall_s: float = 0.0
+    cpu_s: float = 0.0
 
 
 def next_multiple(value: int, every: int) -> int:
