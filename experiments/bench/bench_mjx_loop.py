@@ -1,7 +1,7 @@
 """The whole training loop on an MJX task: the device loop against the host loop.
 
-Both loops train the same VSG (``small`` and ``debug``; ``--sizes`` picks) with the same config
-on ``mjx_cartpole_swingup``; only ``train.loop`` differs:
+Both loops train the same VSG (``cpu``, ``small`` and ``debug``; ``--sizes`` picks) with the
+same config on ``mjx_cartpole_swingup``; only ``train.loop`` differs:
 
 * ``device``: one jitted call per episode of every env (policy, MJX steps, replay, updates);
 * ``host``: the host loop driving the same MJX envs through ``vsgjax/envs/mjx/vector_env.py`` (one
@@ -17,7 +17,7 @@ at the end of prefill, in the warm-up), videos and checkpoints are off; episode 
 are written as in training. The host loop's count includes its one reset step per episode
 (gymnasium's NEXT_STEP autoreset).
 
-    python -m experiments.bench.bench_mjx_loop [--sizes small debug] [--smoke]
+    python -m experiments.bench.bench_mjx_loop [--sizes cpu small debug] [--smoke]
 
 ``--smoke`` times one short window at the debug size with 40-step episodes and writes nothing
 (its warm-up, mostly compilation, takes minutes on 2 cores).
@@ -124,8 +124,8 @@ def markdown(rows: list[dict], size: str, calls: int, window: int, repeats: int)
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m experiments.bench.bench_mjx_loop",
                                      description=__doc__.split("\n")[0])
-    parser.add_argument("--sizes", nargs="+", default=["small", "debug"],
-                        choices=("small", "debug"))
+    parser.add_argument("--sizes", nargs="+", default=["cpu", "small", "debug"],
+                        choices=("cpu", "small", "debug"))
     parser.add_argument("--smoke", action="store_true",
                         help="one short window (debug size, short episodes); writes nothing")
     args = parser.parse_args(argv or [])
