@@ -112,6 +112,8 @@ def draw_versus(data: VersusData, stem: Path, title: str = "") -> list[Path]:
                     wall_ax.plot(seed.wall / 60.0, seed.ys, color=c, lw=1.0, alpha=0.8)
         if data.budget_minutes:
             wall_ax.axvline(data.budget_minutes, color="gray", lw=0.8)
+        wall_ax.set_ylim(steps_ax.get_ylim())
+        wall_ax.set_xlim(left=0, right=max(wall_ax.get_xlim()[1], data.budget_minutes or 0))
         note = missing_note([r for r in data.missing if r.task == task], 4, 40, False)
         if note:
             steps_ax.text(0.02, 0.98, note, transform=steps_ax.transAxes, va="top", fontsize=6,
