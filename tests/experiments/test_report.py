@@ -355,3 +355,38 @@ def test_cli_writes_png_pdf_and_report(tmp_path, capsys):
     default = report.build_report(experiment, tmp_path, spacing=1_000)
     assert default.out == tmp_path / "bbs_basic" / "report"
     assert (default.out / "summary.png").exists() is False  # bbs_basic has no summary figure
+
+
+DV3_REFERENCE = json.loads((REFERENCE_DIR / "dreamerv3_dmc_proprio.json").read_text())
+
+
+def test_versus_table_and_figure_against_dreamerv3(tmp_path):
+    experiment = load_experiment("cpu_proprio", seeds=2)
+    assert {run.size for run in experiment.runs} == {"cpu"}
+    assert experiment.runs[0].steps == 100_000
+    written = [run for run in experiment.runs
+               if run.task == "mjx_cartpole_swingup" and run.model == "vsg"]
+    for run in written:  # seed 0 scores 400 at 100k, seed 1 300: mean 350 > DreamerV3's 321.6
+        logdir = run.logdir(tmp_path)
+        logdir.mkdir(parents=True)
+        xs = [4_000.0 * k for k in range(1, 26)]
+        ys = [(400.0 if run.seed == 0 else 300.0) * x / 100_000 for x in xs]
+        record = {"task": run.task, "method": run.method, "seed": str(run.seed), "xs": xs,
+                  "ys": ys, "wall_s": [18.0 * x / 1000 for x in xs], "cpu_s": xs}
+        (logdir / "scores.jsonl").write_text(json.dumps(record) + "\n")
+    built = report.build_report(experiment, tmp_path)
+    versus = next(s for s in built.sections if s.kind == "versus")
+    assert {p.suffix for p in versus.files} == {".png", ".pdf", ".md"}
+    rows = {tuple(line.split(" | ")[:2]): line for line in versus.markdown.splitlines()
+            if line.startswith("| mjx_")}
+    released = [r for r in DV3_REFERENCE if r["task"] == "dmc_cartpole_swingup"]
+    at_100k = [r["ys"][r["xs"].index(100_000)] for r in released]
+    mean, std = float(np.mean(at_100k)), float(np.std(at_100k))
+    released_row = rows[("| mjx_cartpole_swingup", "dreamerv3 (released)")]
+    assert f"{mean:.1f} ± {std:.1f} (n=5)" in released_row
+    ours = rows[("| mjx_cartpole_swingup", "VSG")]
+    assert "350.0 ± 50.0 (n=2)" in ours and "70.0 ± 10.0 (n=2)" in ours  # 100k and 20k
+    assert "30.0, 30.0 |" in ours  # wall minutes per run at the last evaluation
+    assert "missing" in rows[("| mjx_walker_walk", "VSG")]
+    assert "VSG: 1 of 5 tasks; DreamerV2: 0 of 5 tasks" in versus.markdown
+    assert len(built.missing) == len(experiment.runs) - 2
