@@ -9,6 +9,9 @@ process, at the ``cpu``, ``small`` and ``paper`` sizes (VSG)::
 at their own batch. FLOPs are counted from the jaxpr (:mod:`experiments.bench.flops`:
 matmuls and convolutions as the lax convolutions they equal, scan bodies times their length).
 Each size runs in its own subprocess; medians over ``--updates`` updates after compilation.
+The profile of the ``cpu`` update: its world-model gradient and its actor gradient (the
+imagination from every posterior state and the backward pass through it) timed alone, and the
+whole update with XLA:CPU on one thread (``ONE_THREAD``) against its default thread pool.
 ``--smoke`` runs the ``cpu`` size for 2 updates and writes nothing.
 """
 
@@ -31,12 +34,14 @@ from experiments.bench.bench_world_model import matmul_rate, model_flops
 from experiments.bench.run_all import machine_line
 from vsgjax.config import make_config
 from vsgjax.envs.mjx import make_mjx_task
+from vsgjax.model import behaviour as bhv
 from vsgjax.model.agent import Agent
 
 RESULTS = Path(__file__).parent / "results" / "agent_update.md"
 SIZES = ("cpu", "small", "paper")
 TASKS = {"cpu": "mjx_cartpole_swingup", "small": "bbs_basic", "paper": "bbs_basic"}
 MODEL = "vsg"
+ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
 
 def _batch(config, obs: dict, action_dim: int) -> dict:
@@ -55,8 +60,7 @@ def _batch(config, obs: dict, action_dim: int) -> dict:
     return batch
 
 
-def measure(size: str, updates: int) -> dict:
-    """One size's agent update: useful FLOPs, median seconds, and the matmul rate (subprocess)."""
+def agent_and_batch(size: str) -> tuple[Agent, dict]:
     config = make_config(TASKS[size], MODEL, size)
     if size == "cpu":
         task = make_mjx_task(config.env.task, config.env.action_repeat, config.env.time_limit)
@@ -64,9 +68,24 @@ def measure(size: str, updates: int) -> dict:
         action_dim = task.action_dim
     else:
         obs, action_dim = {"image": (64, 64, 3)}, 2
-    agent = Agent(config, obs, action_dim, False)
+    return Agent(config, obs, action_dim, False), _batch(config, obs, action_dim)
+
+
+def median_seconds(fn, *args, repeats: int) -> float:
+    jax.block_until_ready(fn(*args))
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - started)
+    return statistics.median(times)
+
+
+def measure(size: str, updates: int) -> dict:
+    """One size's agent update: useful FLOPs, median seconds, and the matmul rate (subprocess)."""
+    agent, batch = agent_and_batch(size)
+    config = agent.config
     state, key = agent.init(jax.random.PRNGKey(0)), jax.random.PRNGKey(1)
-    batch = _batch(config, obs, action_dim)
     started = time.perf_counter()
     compiled = agent.train_step.lower(agent, state, batch, key).compile()
     compile_s = time.perf_counter() - started
@@ -89,10 +108,35 @@ def measure(size: str, updates: int) -> dict:
             "updates": updates}
 
 
-def _child(size: str, updates: int) -> dict:
+def measure_parts(updates: int) -> dict:
+    """The cpu update's world-model gradient, actor gradient and whole update, each timed
+    alone (seconds, median)."""
+    agent, batch = agent_and_batch("cpu")
+    state, key = agent.init(jax.random.PRNGKey(0)), jax.random.PRNGKey(1)
+    params, wm = state.params, agent.world_model
+    _, (_, posts) = jax.jit(wm.loss)(params["wm"], batch, key)
+    starts, start_continue = bhv.start_states(posts, batch["is_terminal"], agent.behaviour,
+                                              drop_last=agent.config.wm.discount_head)
+    keys = jax.random.split(key, start_continue.shape[0])
+
+    def actor_grad(actor):
+        return jax.grad(lambda a: bhv.actor_loss(
+            a, agent.behaviour, params["critic"], params["slow_critic"],
+            agent.world_fns(params["wm"]), starts, start_continue, keys)[0])(actor)
+
+    wm_grad = jax.jit(jax.grad(lambda p: wm.loss(p, batch, key)[0]))
+    return {"update_s": median_seconds(agent.train_step, state, batch, key, repeats=updates),
+            "wm_grad_s": median_seconds(wm_grad, params["wm"], repeats=updates),
+            "actor_grad_s": median_seconds(jax.jit(actor_grad), params["actor"],
+                                           repeats=updates)}
+
+
+def _child(mode: str, updates: int, xla_flags: str = "") -> dict:
+    env = {**os.environ, "XLA_FLAGS": xla_flags} if xla_flags else None
     output = subprocess.run(
-        [sys.executable, "-m", "experiments.bench.bench_agent_update", "--child", size,
-         "--updates", str(updates)], check=True, capture_output=True, text=True).stdout
+        [sys.executable, "-m", "experiments.bench.bench_agent_update", "--child", mode,
+         "--updates", str(updates)], check=True, capture_output=True, text=True,
+        env=env).stdout
     return json.loads(output.strip().splitlines()[-1])
 
 
@@ -116,21 +160,40 @@ def markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def profile_markdown(parts: dict, one_thread: dict) -> str:
+    whole = parts["update_s"]
+    return "\n".join([
+        "### Profile of the `cpu` update", "",
+        "| part (timed alone) | seconds | share of the update |", "|---|---|---|",
+        f"| world-model gradient | {parts['wm_grad_s']:.3f} | "
+        f"{100 * parts['wm_grad_s'] / whole:.0f}% |",
+        f"| actor gradient (imagination and its backward pass) | {parts['actor_grad_s']:.3f} | "
+        f"{100 * parts['actor_grad_s'] / whole:.0f}% |",
+        f"| whole update | {whole:.3f} | 100% |",
+        f"| whole update, XLA:CPU on one thread | {one_thread['update_s']:.3f} | "
+        f"{one_thread['update_s'] / whole:.2f}x the default |", ""])
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m experiments.bench.bench_agent_update",
                                      description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", nargs="+", default=list(SIZES), choices=SIZES)
     parser.add_argument("--updates", type=int, default=5)
     parser.add_argument("--smoke", action="store_true")
-    parser.add_argument("--child", choices=SIZES, help=argparse.SUPPRESS)
-    args = parser.parse_args(argv)
+    parser.add_argument("--child", choices=(*SIZES, "parts"), help=argparse.SUPPRESS)
+    args = parser.parse_args(argv or [])
     if args.child:
-        print(json.dumps(measure(args.child, args.updates)))
+        result = (measure_parts(args.updates) if args.child == "parts"
+                  else measure(args.child, args.updates))
+        print(json.dumps(result))
         return
     if args.smoke:
         print(markdown([_child("cpu", 2)]))
         return
     text = markdown([_child(size, args.updates) for size in args.sizes])
+    if "cpu" in args.sizes:
+        text += "\n" + profile_markdown(_child("parts", args.updates),
+                                        _child("parts", args.updates, ONE_THREAD))
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(text)
     print(text)
