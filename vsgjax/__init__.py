@@ -11,6 +11,9 @@ Public API (imported lazily, so ``import vsgjax`` stays cheap)::
     posts = run.observe(run.episode(-1))           # posterior states [T, ...]
     rollout = vsgjax.imagine(run.params, jax.tree.map(lambda x: x[14], posts), H=15)
 
+    stats = vsgjax.gate_statistics(run.params, batch)  # VSG / SVSG gates: open fractions,
+    stats.summary()                                    # gate KL, closed-run lengths
+
 (``run.params`` carry their config, so that last call needs no ``config``/``key``; see
 ``vsgjax.load`` and docs/notebook.md.)
 """
@@ -33,6 +36,8 @@ _EXPORTS = {
     "TrainedRun": "vsgjax.loop.load",
     "make_optimizer": "vsgjax.model.optim",
     "Agent": "vsgjax.model.agent",
+    "gate_statistics": "vsgjax.model.gate_statistics",
+    "GateStatistics": "vsgjax.model.gate_statistics",
 }
 
 __all__ = sorted(_EXPORTS)
