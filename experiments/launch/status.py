@@ -11,10 +11,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from experiments.launch.jobs import Job
-from experiments.rundir import CHECKPOINTS_DIR, CONFIG_FILE, METRICS_FILE, SCORES_FILE
 from experiments.spec import Run
 from vsgjax.config import config_changes, to_dict
 from vsgjax.data import checkpoint
+from vsgjax.loop.rundir import CHECKPOINTS_DIR, CONFIG_FILE, METRICS_FILE, SCORES_FILE
 
 
 @dataclass

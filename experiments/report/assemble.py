@@ -22,8 +22,8 @@ from experiments.report.runs import run_name, warn
 from experiments.report.style import relative, step_label
 from experiments.report.summary import draw_summary, summary_data, summary_markdown
 from experiments.report.versus import draw_versus, versus_data, versus_markdown
-from experiments.rundir import SCORES_FILE
 from experiments.spec import DEFAULT_ROOT, Experiment, Run
+from vsgjax.loop.rundir import SCORES_FILE
 
 
 @dataclass

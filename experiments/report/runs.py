@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.rundir import CONFIG_FILE, EPISODES_FILE, SCORES_FILE
 from experiments.spec import Run
+from vsgjax.loop.rundir import CONFIG_FILE, EVAL_EPISODES_FILE, SCORES_FILE
 
 
 class ReportWarning(UserWarning):
@@ -106,7 +106,7 @@ class RunRecords:
                 if curve is not None:
                     return curve if len(curve.xs) else None
                 warn(f"{path}: record {number} has no valid xs/ys lists; skipped", self.problems)
-        episodes = logdir / EPISODES_FILE
+        episodes = logdir / EVAL_EPISODES_FILE
         if episodes.exists():
             by_step: dict[float, list[float]] = {}
             for record in read_jsonl(episodes, self.problems):

@@ -356,7 +356,7 @@ def test_unknown_names_are_errors_listing_the_valid_ones(definitions, tmp_path, 
     assert exit_info.value.code == 2
     assert "choose from 'local', 'slurm', 'print'" in capsys.readouterr().err
     assert launch.main(launch_args("two", definitions, tmp_path, "--size", "huge")) == 2
-    assert "unknown size 'huge'; valid: paper, small, debug" in capsys.readouterr().err
+    assert "unknown size 'huge'; valid: paper, small, cpu, debug" in capsys.readouterr().err
     assert not tmp_path.joinpath("two").exists()
 
 
