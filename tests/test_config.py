@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -240,3 +241,19 @@ def test_a_saved_config_that_predates_a_key_counts_it_as_its_default():
     assert config_changes(saved, current) == []
     changed = to_dict(make_config("bbs_basic", "vsg", "small", ["model.precision=bfloat16"]))
     assert config_changes(saved, changed) == ["model.precision: 'float32' -> 'bfloat16'"]
+
+
+def test_readme_cpu_table_names_every_key_the_cpu_size_sets():
+    from vsgjax.config import _SIZE, _SIZE_MODEL
+
+    lines = README.read_text().splitlines()
+    start = lines.index("### The `cpu` size (vector observations, `mjx_*` tasks)")
+    header = next(i for i in range(start, len(lines)) if lines[i].startswith("| key |"))
+    named = set()
+    for line in lines[header + 2:]:
+        if not line.startswith("|"):
+            break
+        named |= set(re.findall(r"`([a-z]+\.[a-z_]+)`", line.split("|")[1]))
+    sets = set(_SIZE["cpu"]) | {key for (size, _), values in _SIZE_MODEL.items()
+                                if size == "cpu" for key in values}
+    assert named == sets
