@@ -59,11 +59,6 @@ class Context:
                 curves.append(curve)
         return curves, missing
 
-    def reference_task(self, task: str) -> str:
-        """The reference's name of our task: ``mjx_<domain>_<task>`` is dm_control's task,
-        ``dmc_<domain>_<task>`` in the reference files; others are their own."""
-        return "dmc_" + task.removeprefix("mjx_") if task.startswith("mjx_") else task
-
     def paper(self, task: str, method: str) -> list[Curve]:
         return self.reference.seeds(task, method) if self.reference is not None else []
 

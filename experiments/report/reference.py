@@ -18,7 +18,10 @@ PAPER_METHODS = {"vsg_paper_bbs.json": {"VSGC": "VSG"}}
 
 def paper_task(task: str) -> str:
     """The reference files' name of our task: ``bbs_medium_d2`` ->
-    ``bringbackshapes_sparse_distract2_size1.4``; DMC and other names are the same."""
+    ``bringbackshapes_sparse_distract2_size1.4``; ``mjx_walker_walk`` -> ``dmc_walker_walk``
+    (the same dm_control task); DMC and other names are the same."""
+    if task.startswith("mjx_"):
+        return "dmc_" + task.removeprefix("mjx_")
     if task.startswith("bbs_") and task in bbs.VARIANTS:
         kwargs = bbs.VARIANTS[task]
         return (f"bringbackshapes_sparse_distract{kwargs['num_distractors']}"

@@ -13,6 +13,7 @@ from matplotlib.figure import Figure
 
 from experiments.report.binning import Stat, binned, seed_stats, value_near
 from experiments.report.context import Context
+from experiments.report.reference import paper_task
 from experiments.report.runs import Curve
 from experiments.report.style import (
     colour,
@@ -54,7 +55,7 @@ def versus_data(context: Context, at=(), budget_minutes: float | None = None) ->
         if context.reference is None:
             continue
         for (ref_task, ref_method), curves in context.reference.curves.items():
-            if ref_task == context.reference_task(task):
+            if ref_task == paper_task(task):
                 bar[(task, ref_method)] = [cut(c, context.steps) for c in curves]
                 if ref_method not in bar_methods:
                     bar_methods.append(ref_method)
