@@ -12,8 +12,8 @@ A config is built from three names and a list of overrides::
   ``small`` is CPU-friendly (smaller networks, and batch 8 x 32 every 2 agent steps so that
   a small CPU updates about once a second), ``debug`` is for tests.
 
-Unknown names, unknown keys and values of the wrong type are errors that name the bad value and
-list what is valid.
+Unknown names, unknown keys, values of the wrong type and values out of their range
+(:mod:`vsgjax.config_checks`) are errors that name the bad value and list what is valid.
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS,
 
 
 class ConfigError(ValueError):
-    """A malformed configuration: unknown name or key, or a value of the wrong type."""
+    """A malformed configuration: unknown name or key, a value of the wrong type or out of its
+    range, or a command-line value or run directory that does not fit the run."""
 
 
 @dataclass(frozen=True)
@@ -322,7 +323,8 @@ def make_config(
     size: str = "paper",
     overrides: Sequence[str] = (),
 ) -> Config:
-    """Resolve presets for (task's domain, model, size), then apply ``key=value`` overrides."""
+    """Resolve presets for (task's domain, model, size), then apply ``key=value`` overrides;
+    every value is checked (:mod:`vsgjax.config_checks`)."""
     domain = domain_of(task)
     _check_name("model", model, MODELS)
     _check_name("size", size, SIZES)
@@ -338,7 +340,11 @@ def make_config(
     )
     for preset in layers:
         config = apply_values(config, preset)
-    return apply_overrides(config, overrides)
+    config = apply_overrides(config, overrides)
+    from vsgjax.config_checks import check_config  # imports this module
+
+    check_config(config)
+    return config
 
 
 def apply_overrides(config: Config, overrides: Sequence[str]) -> Config:

@@ -1,0 +1,145 @@
+"""The valid values of a built config: a range for every numeric key, and the checks between
+keys and against the task (a sequence must fit in an episode of the task).
+
+:func:`check_config` runs at the end of :func:`vsgjax.config.make_config`, so a bad value stops
+a run before it writes anything; the error names the key, the value and what is valid.
+``train.devices`` is checked against the devices JAX sees when training starts
+(:func:`vsgjax.loop.parallel.resolve_devices`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+from vsgjax.config import Config, ConfigError
+
+# Seeds up to 2**30 leave room below 2**31 for the evaluation envs' offset and the env index.
+MAX_SEED = 2**30
+MIN_LENGTH = 2  # a training sequence needs one transition for the dynamics to learn from
+
+
+@dataclass(frozen=True)
+class Range:
+    """Numbers from ``low`` to ``high`` (None: unbounded), each end included unless open."""
+
+    low: float | None = None
+    high: float | None = None
+    open_low: bool = False
+    open_high: bool = False
+
+    def __contains__(self, value: float) -> bool:
+        if not math.isfinite(value):
+            return False
+        above = self.low is None or (value > self.low if self.open_low else value >= self.low)
+        below = self.high is None or (value < self.high if self.open_high else value <= self.high)
+        return above and below
+
+    def __str__(self) -> str:
+        if self.high is None:
+            return "any finite number" if self.low is None else (
+                f"{'>' if self.open_low else '>='} {_number(self.low)}")
+        left, right = "(" if self.open_low else "[", ")" if self.open_high else "]"
+        return f"{left}{_number(self.low)}, {_number(self.high)}{right}"
+
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
+AT_LEAST_0, AT_LEAST_1, POSITIVE = Range(0), Range(1), Range(0, open_low=True)
+UNIT, OPEN_UNIT = Range(0, 1), Range(0, 1, open_low=True, open_high=True)
+
+RANGES = {
+    "model.deter": AT_LEAST_0, "model.hidden": AT_LEAST_1, "model.stoch": AT_LEAST_1,
+    "model.classes": AT_LEAST_0, "model.min_std": AT_LEAST_0, "model.gate_bias": Range(),
+    "wm.cnn_depth": AT_LEAST_1, "wm.mlp_layers": AT_LEAST_0, "wm.mlp_units": AT_LEAST_1,
+    "wm.reward_layers": AT_LEAST_0, "wm.discount_layers": AT_LEAST_0,
+    "wm.kl_scale": AT_LEAST_0, "wm.kl_balance": UNIT, "wm.kl_free": AT_LEAST_0,
+    "wm.gate_alpha": AT_LEAST_0, "wm.gate_kappa": OPEN_UNIT, "wm.gate_free": AT_LEAST_0,
+    "wm.reward_scale": AT_LEAST_0, "wm.discount_scale": AT_LEAST_0,
+    "wm.lr": POSITIVE, "wm.eps": POSITIVE, "wm.clip": POSITIVE, "wm.weight_decay": AT_LEAST_0,
+    "ac.horizon": AT_LEAST_1, "ac.gamma": UNIT, "ac.lam": UNIT,
+    "ac.actor_layers": AT_LEAST_0, "ac.critic_layers": AT_LEAST_0,
+    "ac.actor_lr": POSITIVE, "ac.critic_lr": POSITIVE, "ac.actor_grad_mix": UNIT,
+    "ac.actor_min_std": AT_LEAST_0, "ac.entropy": AT_LEAST_0, "ac.slow_critic_every": AT_LEAST_1,
+    "ac.eps": POSITIVE, "ac.clip": POSITIVE, "ac.weight_decay": AT_LEAST_0,
+    "env.action_repeat": AT_LEAST_1, "env.time_limit": AT_LEAST_1, "env.image_size": AT_LEAST_1,
+    "env.sticky": UNIT, "env.num_envs": AT_LEAST_1, "env.eval_envs": AT_LEAST_1,
+    "train.seed": Range(0, MAX_SEED), "train.steps": AT_LEAST_1, "train.batch": AT_LEAST_1,
+    "train.length": Range(MIN_LENGTH), "train.train_every": AT_LEAST_1,
+    "train.prefill": AT_LEAST_0, "train.replay_capacity": AT_LEAST_1,
+    "train.pretrain": AT_LEAST_0, "train.eval_every": AT_LEAST_1,
+    "train.eval_episodes": AT_LEAST_1, "train.log_every": AT_LEAST_1,
+    "train.ckpt_every": AT_LEAST_1, "train.video_every": AT_LEAST_1,
+}
+# Numeric keys checked elsewhere (when the devices are known).
+CHECKED_AT_START = ("train.devices",)
+ATARI_OPTIONS = ("env.grayscale", "env.sticky")
+
+
+def check_config(config: Config) -> None:
+    """Raise ConfigError for the first value out of its range or in conflict with the task."""
+    for key, value in numeric_values(config).items():
+        if key in RANGES and value not in RANGES[key]:
+            raise ConfigError(f"config key {key!r} got {value!r}; valid: {RANGES[key]}")
+    _check_horizon(config)
+    _check_sequences(config)
+    _check_atari_options(config)
+
+
+def numeric_values(config: Config) -> dict[str, float]:
+    """``section.key: value`` of every int and float of a config."""
+    values = {}
+    for section in fields(config):
+        part = getattr(config, section.name)
+        if not hasattr(part, "__dataclass_fields__"):
+            continue
+        for item in fields(part):
+            value = getattr(part, item.name)
+            if isinstance(value, int | float) and not isinstance(value, bool):
+                values[f"{section.name}.{item.name}"] = value
+    return values
+
+
+def max_episode_steps(config: Config) -> int:
+    """The most steps an episode of the task stores (agent steps + the first observation).
+
+    BringBackShapes truncates after ``time_limit + 2`` physics sub-steps (bbs/env.py); the
+    other domains after ``time_limit`` env steps (DeepMind Control may end sooner, at its own
+    limit); an agent step is ``action_repeat`` of them.
+    """
+    env = config.env
+    env_steps = env.time_limit + 2 if config.domain == "bbs" else env.time_limit
+    return math.ceil(env_steps / env.action_repeat) + 1
+
+
+def _check_horizon(config: Config) -> None:
+    if config.ac.alignment == "release" and config.ac.horizon < 2:
+        raise ConfigError(f"config key 'ac.horizon' got {config.ac.horizon} with "
+                          "ac.alignment=release, which imagines horizon - 1 steps; valid: >= 2 "
+                          "(or ac.alignment=next_state)")
+
+
+def _check_sequences(config: Config) -> None:
+    train, steps = config.train, max_episode_steps(config)
+    if train.length > steps:
+        raise ConfigError(
+            f"train.length={train.length} is longer than an episode of {config.env.task} can be "
+            f"({steps} stored steps with env.time_limit={config.env.time_limit} and "
+            f"env.action_repeat={config.env.action_repeat}); valid: <= {steps}")
+    if train.replay_capacity < train.length:
+        raise ConfigError(f"train.replay_capacity={train.replay_capacity} holds no sequence "
+                          f"of train.length={train.length} steps; valid: >= {train.length}")
+
+
+def _check_atari_options(config: Config) -> None:
+    if config.domain == "atari":
+        return
+    for key in ATARI_OPTIONS:
+        section, name = key.split(".")
+        value = getattr(getattr(config, section), name)
+        if value:
+            off = False if isinstance(value, bool) else 0
+            raise ConfigError(f"{key}={value} is an Atari option; valid for task "
+                              f"{config.env.task!r}: {key}={off}")
