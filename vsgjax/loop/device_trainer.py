@@ -24,9 +24,12 @@ from vsgjax.loop.driver import (
     LoopDriver,
     check_seed_group,
     non_finite,
+    open_runs,
+    release_runs,
     restore_seeds,
     saved_counters,
 )
+from vsgjax.loop.gate_logging import gate_summary, logs_gates, probe_key
 from vsgjax.loop.parallel import seed_batched, stack, take
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters
@@ -36,17 +39,22 @@ class DeviceTrainer(LoopDriver):
     """Train one or more seeds of an ``mjx_`` task with the compiled device program."""
 
     def __init__(self, configs: list[Config], logdirs: list[Path], *, progress: bool = True,
-                 out=print):
+                 out=print, restart: bool = False):
         check_seed_group(configs, logdirs)
         self.config, self.out = configs[0], out
         env = self.config.env
         task = make_mjx_task(env.task, env.action_repeat, env.time_limit)
         self.program = DeviceProgram(self.config, task)
         self.program.check()
-        self.runs = [RunWriter(c, d) for c, d in zip(configs, logdirs, strict=True)]
-        self._compile(len(self.runs))
-        self.state, counters, self.resumed = self._restore()
-        self.start(counters, progress=progress)
+        self.runs = open_runs(lambda c, d: RunWriter(c, d, restart=restart), configs, logdirs)
+        try:
+            self._compile(len(self.runs))
+            self._sample = jax.jit(self.program.sample)
+            self.state, counters, self.resumed = self._restore()
+            self.start(counters, progress=progress)
+        except BaseException:
+            release_runs(self.runs)
+            raise
         self._update_replay_steps()
 
     def _compile(self, seeds: int) -> None:
@@ -155,6 +163,22 @@ class DeviceTrainer(LoopDriver):
                 info = {"return": float(episode["reward"].sum()),
                         "length": len(episode["reward"]) - 1}
                 run.on_episode(episode, info, self.env_steps)
+
+    def log(self) -> None:
+        """The train records, then each seed's ``gates/*`` line on a batch of its replay
+        (:mod:`vsgjax.loop.gate_logging`)."""
+        super().log()
+        if logs_gates(self.config) and self.schedule.training:
+            for i, run in enumerate(self.runs):
+                summary = gate_summary(self.config, take(self.state.agent.params["wm"], i),
+                                       self.gate_batch(i))
+                run.logger.scalars(self.env_steps, summary)
+
+    def gate_batch(self, index: int) -> dict:
+        """The batch of seed ``index``'s ``gates/*`` line at this env step: ``train.batch``
+        sequences sampled from its replay with :func:`~vsgjax.loop.gate_logging.probe_key`."""
+        key = probe_key(self.runs[index].seed, self.env_steps)
+        return self._sample(take(self.state.replay, index), key)
 
     def report_log(self, records: list[dict], shared: dict) -> None:
         returns = "/".join(f"{r['return']:.3g}" for r in records if "return" in r)

@@ -25,10 +25,13 @@ from vsgjax.loop.driver import (
     check_seed_group,
     group_label,
     non_finite,
+    open_runs,
+    release_runs,
     restore_seeds,
     saved_counters,
 )
 from vsgjax.loop.evaluate import Evaluator, checkpoint_tree, restore_latest
+from vsgjax.loop.gate_logging import gate_summary, logs_gates
 from vsgjax.loop.parallel import Parallel, mesh_shape, resolve_devices, split_keys, stack, take
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters, env_seed
@@ -44,8 +47,8 @@ PER_UPDATE = {"loss": "wm/loss", "mse": "wm/image_mse"}
 class SeedRun(RunWriter):
     """One seed of the host loop: its run directory, replay and evaluation envs."""
 
-    def __init__(self, config: Config, logdir: Path):
-        super().__init__(config, logdir)
+    def __init__(self, config: Config, logdir: Path, *, restart: bool = False):
+        super().__init__(config, logdir, restart=restart)
         train = config.train
         self.replay = Replay(train.replay_capacity, train.length, train.seed, train.oversample_ends)
 
@@ -83,16 +86,25 @@ class HostTrainer(LoopDriver):
     """
 
     def __init__(self, configs: Config | Sequence[Config], logdirs: Path | Sequence[Path], *,
-                 make_envs: MakeEnvs = make_env_batch, progress: bool = True, out=print):
+                 make_envs: MakeEnvs = make_env_batch, progress: bool = True, out=print,
+                 restart: bool = False):
         self._started = time.monotonic()
         configs = [configs] if isinstance(configs, Config) else list(configs)
         logdirs = [Path(logdirs)] if isinstance(logdirs, str | Path) else list(map(Path, logdirs))
         check_seed_group(configs, logdirs)
         self.config, self.out = configs[0], out
-        train, env = self.config.train, self.config.env
         self.devices = resolve_devices(self.config)
-        mesh_shape(len(configs), self.devices, train.batch)  # raises if the batch cannot split
-        self.runs = [SeedRun(c, d) for c, d in zip(configs, logdirs, strict=True)]
+        mesh_shape(len(configs), self.devices, self.config.train.batch)  # the batch must split
+        self.runs = open_runs(lambda c, d: SeedRun(c, d, restart=restart), configs, logdirs)
+        try:
+            self._set_up(configs, make_envs, progress)
+        except BaseException:
+            release_runs(self.runs)
+            raise
+
+    def _set_up(self, configs: list[Config], make_envs: MakeEnvs, progress: bool) -> None:
+        """Envs, agent, the restored (or fresh) state of every seed, the collector."""
+        train, env = self.config.train, self.config.env
         eval_envs = [make_envs(c.env, c.train.seed, env.eval_envs, eval=True) for c in configs]
         spec = eval_envs[0].spec
         self.agent = Agent(self.config, spec.obs, spec.action_dim, spec.discrete)
@@ -125,6 +137,7 @@ class HostTrainer(LoopDriver):
         self.collector = Collector(envs, jax.vmap(acting_policy(self.agent, spec, "train")),
                                    chunk=chunk, on_episode=self._on_episode)
         self.carry = stack([self.agent.initial_carry(env.num_envs)] * len(self.runs))
+        self.last_batch: dict | None = None  # the latest update's batch [S, B, T, ...]
         self._first_update = self.counters.updates + 1  # of this process: it compiles
 
     def describe(self) -> str:
@@ -198,6 +211,7 @@ class HostTrainer(LoopDriver):
         batch = self.parallel.put_batch([run.replay.sample(self.config.train.batch)
                                          for run in self.runs])
         self.state, metrics = self.parallel.train_step(self.state, batch, self._next_keys())
+        self.last_batch = batch
         metrics = jax.device_get(metrics)
         per_seed = [{k: v[i] for k, v in metrics.items()} for i in range(len(self.runs))]
         problems = [non_finite(m, self.counters.updates + 1, self.env_steps) for m in per_seed]
@@ -228,7 +242,18 @@ class HostTrainer(LoopDriver):
             self.parallel = Parallel(self.agent, len(keep), math.gcd(len(keep), self.devices))
         self.state = self.parallel.put_state(take(self.state, keep))
         self.keys, self.carry = self.keys[jnp.asarray(keep)], take(self.carry, keep)
+        self.last_batch = None  # of the seeds before; the next update sets it again
         return [per_seed[i] for i in keep]
+
+    def log(self) -> None:
+        """The train records, then each seed's ``gates/*`` line on its latest training batch
+        (:mod:`vsgjax.loop.gate_logging`)."""
+        super().log()
+        if logs_gates(self.config) and self.last_batch is not None:
+            for i, run in enumerate(self.runs):
+                summary = gate_summary(self.config, take(self.state.params["wm"], i),
+                                       take(self.last_batch, i))
+                run.logger.scalars(self.env_steps, summary)
 
     def report_log(self, records: list[dict], shared: dict) -> None:
         shown = {"ret": "return", **PER_UPDATE, "rew": "wm/reward_loss", "kl": "wm/kl",
