@@ -177,7 +177,7 @@ def test_bad_seeds_and_devices_are_errors_naming_them(capsys, tmp_path):
 
 SHARDED = textwrap.dedent("""
     import jax, numpy as np
-    from tests.test_agent import make_agent, make_batch
+    from tests.model.test_agent import make_agent, make_batch
     from vsgjax.loop.parallel import Parallel, stack
     agent = make_agent("vsg", False)
     assert len(jax.devices()) == 2
