@@ -47,8 +47,18 @@ def variant_kwargs(name: str) -> dict:
 
 
 def make(name: str, **overrides) -> BringBackShapesEnv:
-    """Build a variant by task name; ``overrides`` (e.g. ``time_limit``, ``render_mode``) win."""
-    return BringBackShapesEnv(**(variant_kwargs(name) | overrides))
+    """Build a variant by task name with other options (e.g. ``time_limit``, ``render_mode``).
+
+    The variant fixes ``arena_scale`` and ``num_distractors``: giving either another value is a
+    ValueError (``gymnasium.make("BringBackShapes-v0", ...)`` takes any).
+    """
+    variant = variant_kwargs(name)
+    for key, value in overrides.items():
+        if key in variant and value != variant[key]:
+            raise ValueError(f"bbs.make({name!r}, {key}={value!r}): variant {name} has "
+                             f"{key}={variant[key]!r}; valid: that value, another variant, or "
+                             f"gymnasium.make('BringBackShapes-v0', {key}={value!r}, ...)")
+    return BringBackShapesEnv(**(variant | overrides))
 
 
 def _register() -> None:

@@ -13,7 +13,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from vsgjax.config_checks import RANGES
 from vsgjax.loop.evaluate import evaluate_logdir, format_table, write_episodes
+from vsgjax.outdir import OutputDirError, check_output_dir
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -28,16 +30,34 @@ def main(argv: list[str] | None = None) -> int:
                         help="also write the episodes as JSON lines to PATH (atomically)")
     args = parser.parse_args(argv)
     try:
+        check_args(args)
         infos, env_steps = evaluate_logdir(args.logdir, args.episodes, args.seed)
-    except (FileNotFoundError, ValueError) as error:
+    except (FileNotFoundError, ValueError) as error:  # ConfigError, OutputDirError too
         print(f"error: {error}", file=sys.stderr)
         return 2
     print(f"{args.logdir}: checkpoint at env step {env_steps}, {len(infos)} episodes, "
           "actor mode")
     print(format_table(infos))
     if args.output is not None:
-        print(f"wrote {len(infos)} episodes to {write_episodes(args.output, infos, env_steps)}")
+        try:
+            path = write_episodes(args.output, infos, env_steps)
+        except OSError as error:  # a WriteError names the path
+            print(f"error: {error}", file=sys.stderr)
+            return 1
+        print(f"wrote {len(infos)} episodes to {path}")
     return 0
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """ValueError naming the flag of a value no evaluation can use (before any runs)."""
+    if args.episodes is not None and args.episodes < 1:
+        raise ValueError(f"--episodes {args.episodes}: valid: an integer >= 1")
+    if args.seed is not None and args.seed not in RANGES["train.seed"]:
+        raise ValueError(f"--seed {args.seed}: valid: an integer in {RANGES['train.seed']}")
+    if args.output is not None:
+        if args.output.is_dir():
+            raise OutputDirError(f"--output {args.output} is a directory; valid: a file path")
+        check_output_dir(args.output.parent, "--output's directory")
 
 
 if __name__ == "__main__":

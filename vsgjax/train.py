@@ -25,6 +25,8 @@ from vsgjax.config import (
     ConfigError,
     make_config,
 )
+from vsgjax.config_checks import RANGES
+from vsgjax.data.checkpoint import WriteError
 from vsgjax.envs import TaskError, parse_task, resolve_loop
 from vsgjax.loop.allocator import allocator_line
 from vsgjax.loop.device_trainer import DeviceTrainer
@@ -54,6 +56,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="train several seeds in one process, e.g. 0,1,2 (overrides --seed)")
     parser.add_argument("--logdir", default=None,
                         help="default: runs/<task>-<model>-s{seed} ({seed} is filled in)")
+    parser.add_argument("--restart", action="store_true",
+                        help="start over in a log directory that holds a run: its old contents "
+                             "are moved to <logdir>/previous/<UTC time>/ (nothing is deleted)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("overrides", nargs="*", metavar="key=value")
     return parser.parse_args(argv)
@@ -89,6 +94,8 @@ def parse_seeds(args: argparse.Namespace) -> tuple[list[int], list[str]]:
     if len(texts) > 1:
         raise ConfigError("give the seeds once: --seeds or train.seeds, not both")
     if not texts:
+        if args.seed not in RANGES["train.seed"]:
+            raise ConfigError(f"--seed {args.seed}: valid: an integer in {RANGES['train.seed']}")
         return [args.seed], overrides
     try:
         seeds = [int(part) for part in texts[0].split(",")]
@@ -144,10 +151,12 @@ def device_line() -> str:
 TRAINERS = {"host": HostTrainer, "device": DeviceTrainer}
 
 
-def make_trainer(configs: list[Config], logdirs: list[Path], *, progress: bool = True
-                 ) -> LoopDriver:
-    """The trainer of the configs' loop (``train.loop``, resolved by the task)."""
-    return TRAINERS[resolve_loop(configs[0])](configs, logdirs, progress=progress)
+def make_trainer(configs: list[Config], logdirs: list[Path], *, progress: bool = True,
+                 restart: bool = False) -> LoopDriver:
+    """The trainer of the configs' loop (``train.loop``, resolved by the task); ``restart``
+    moves what the log directories hold aside first."""
+    return TRAINERS[resolve_loop(configs[0])](configs, logdirs, progress=progress,
+                                              restart=restart)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -169,17 +178,28 @@ def main(argv: list[str] | None = None) -> int:
     print(f"device: {device_line()}\n{allocator_line()}\nlogdir: "
           + ", ".join(map(str, logdirs)), flush=True)
     try:
-        trainer = TRAINERS[loop](configs, logdirs, progress=not args.no_progress)
-    except (ConfigError, ValueError) as error:
+        trainer = make_trainer(configs, logdirs, progress=not args.no_progress,
+                               restart=args.restart)
+    except WriteError as error:  # the file written before is intact
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except (ConfigError, ValueError) as error:  # RunDirError, OutputDirError: nothing changed
         print(f"error: {error}", file=sys.stderr)
         return 2
     try:
+        for run in trainer.runs:
+            if run.moved_to is not None:
+                print(f"--restart: moved the old contents of {run.logdir} to {run.moved_to}",
+                      flush=True)
         print(trainer.describe(), flush=True)
         line = trainer.parallel_line()
         if line:
             print(line, flush=True)
         return trainer.run()
     except NonFiniteLossError:  # each seed's reason and last checkpoint are printed already
+        return 1
+    except WriteError as error:  # the file written before is intact
+        print(f"error: {error}", file=sys.stderr)
         return 1
     finally:
         trainer.close()

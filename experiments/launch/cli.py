@@ -28,6 +28,7 @@ from experiments.spec import (
     experiment_names,
     load_experiment,
 )
+from vsgjax.outdir import OutputDirError, check_output_dir
 
 BACKENDS = ("local", "slurm", "print")
 
@@ -88,7 +89,9 @@ def main(argv: list[str] | None = None, out=None) -> int:
         jobs = make_jobs(experiment, root, args.task, args.model)
         if args.backend == "slurm" and not args.status and not has_submitit():
             raise LaunchError(INSTALL_SLURM)
-    except (ExperimentError, LaunchError) as error:
+        if not args.status:
+            check_output_dir(args.root, "--root")
+    except (ExperimentError, LaunchError, OutputDirError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     statuses = {job.index: job_status(job) for job in jobs}

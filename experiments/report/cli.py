@@ -12,6 +12,7 @@ from pathlib import Path
 
 from experiments.report.assemble import build_report
 from experiments.spec import ExperimentError, add_selection_arguments, load_experiment
+from vsgjax.outdir import OutputDirError, check_output_dir
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -28,7 +29,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         experiment = load_experiment(args.name, args.size, args.seeds, args.steps,
                                      args.definitions)
-    except ExperimentError as error:
+        if args.out is not None:
+            check_output_dir(args.out, "--out")
+        else:
+            check_output_dir(args.root, "--root")
+    except (ExperimentError, OutputDirError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     report = build_report(experiment, args.root, args.out, spacing=args.bin)

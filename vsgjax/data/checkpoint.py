@@ -60,6 +60,10 @@ class CheckpointMismatchError(ValueError):
     """An intact checkpoint whose tree does not match the restore target."""
 
 
+class WriteError(OSError):
+    """A file that could not be written (disk full, read-only, ...); the previous one stays."""
+
+
 class Checkpoint(NamedTuple):
     step: int
     tree: Any
@@ -72,18 +76,25 @@ def atomic_write(path: str | os.PathLike, data: bytes) -> Path:
 
     The bytes go to a hidden temp file in the same directory (same filesystem, so the rename
     is atomic), which is fsynced and renamed over ``path``; the directory is fsynced so the
-    rename itself survives a power loss.  On any error the temp file is removed.
+    rename itself survives a power loss.  On any error the temp file is removed and ``path``
+    is left as it was; an OSError is raised as :class:`WriteError` naming ``path``.
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as error:
+        raise WriteError(f"cannot write {path}: {error.strerror}") from error
     try:
         with os.fdopen(fd, "wb") as file:
             file.write(data)
             file.flush()
             os.fsync(file.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as error:
         Path(tmp).unlink(missing_ok=True)
+        if isinstance(error, OSError):
+            raise WriteError(f"cannot write {path}: {error.strerror}; the file is as it was "
+                             "before") from error
         raise
     dir_fd = os.open(path.parent, os.O_RDONLY)
     try:
@@ -166,6 +177,17 @@ def _to_numpy(path: str, leaf: Any) -> np.ndarray:
 
 def decode(data: bytes, target: Any) -> tuple[Any, dict]:
     """Inverse of :func:`encode`: fill ``target``'s structure with the saved leaves."""
+    content = serialization.msgpack_restore(_payload(data))
+    return _fill(target, content["paths"], content["leaves"]), json.loads(content["meta"])
+
+
+def verify(path: str | os.PathLike) -> None:
+    """Raise CorruptCheckpointError (or OSError) unless ``path``'s header and CRC are intact."""
+    _payload(Path(path).read_bytes())
+
+
+def _payload(data: bytes) -> bytes:
+    """The payload of a checkpoint file's bytes, after checking header, length and CRC."""
     if len(data) < _HEADER.size:
         raise CorruptCheckpointError(f"{len(data)} bytes is shorter than the header")
     magic, version, length, crc = _HEADER.unpack_from(data)
@@ -178,8 +200,7 @@ def decode(data: bytes, target: Any) -> tuple[Any, dict]:
         raise CorruptCheckpointError(f"payload has {len(payload)} bytes, header says {length}")
     if zlib.crc32(payload) != crc:
         raise CorruptCheckpointError("payload CRC-32 mismatch")
-    content = serialization.msgpack_restore(payload)
-    return _fill(target, content["paths"], content["leaves"]), json.loads(content["meta"])
+    return payload
 
 
 def _fill(target: Any, paths: list[str], leaves: dict[str, Any]) -> Any:

@@ -55,6 +55,26 @@ def check_seed_group(configs: list[Config], logdirs: list[Path]) -> None:
         raise ConfigError("the seeds of one run must share every config value but train.seed")
 
 
+def open_runs(make_run: Callable[[Config, Path], RunWriter], configs: list[Config],
+              logdirs: list[Path]) -> list[RunWriter]:
+    """Each seed's run directory, opened (and locked) in turn; when one cannot be opened, the
+    ones before are unlocked again."""
+    runs = []
+    try:
+        for config, logdir in zip(configs, logdirs, strict=True):
+            runs.append(make_run(config, logdir))
+    except BaseException:
+        release_runs(runs)
+        raise
+    return runs
+
+
+def release_runs(runs: list[RunWriter]) -> None:
+    """Unlock the run directories of a trainer that failed to start."""
+    for run in runs:
+        run.release()
+
+
 Restore = Callable[[RunWriter, "int | None"], "checkpoint.Checkpoint | None"]
 
 

@@ -5,9 +5,12 @@
     scores.jsonl         the learning curve ``{"task", "method", "seed", "xs", "ys", "wall_s",
                          "cpu_s"}`` (the run's wall and CPU seconds at each evaluation)
     eval_episodes.jsonl  one line per evaluation episode ``{"step", "episode", **info}``
-    checkpoints/         ``ckpt-<env step>.ckpt`` (:mod:`vsgjax.data.checkpoint`)
+    checkpoints/         ``ckpt-<env step>.ckpt`` (:mod:`vsgjax.data.checkpoint`); corrupt
+                         ones are moved to ``checkpoints/corrupt/``
     episodes/            every finished training episode as MCAP (:mod:`vsgjax.data.replay`)
     videos/              eval and open-loop videos (image tasks)
+    .lock                held by the training process (:mod:`vsgjax.loop.rundir_guard`)
+    previous/<time>/     what ``--restart`` moved aside
 
 Training writes it (:class:`RunWriter`); evaluation, ``vsgjax.load`` and the experiments'
 launcher and report read it (:class:`RunDir`).
@@ -26,7 +29,14 @@ from vsgjax.config import Config, ConfigError, config_changes, from_dict, to_dic
 from vsgjax.data import checkpoint
 from vsgjax.data.replay import EpisodeStore
 from vsgjax.loop.logger import Logger, truncate_metrics
+from vsgjax.loop.rundir_guard import (
+    RunLock,
+    move_aside,
+    restart_hint,
+    set_aside_corrupt,
+)
 from vsgjax.loop.schedule import Counters
+from vsgjax.outdir import make_output_dir
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
@@ -68,7 +78,13 @@ class RunDir:
         return self.path(CONFIG_FILE).exists()
 
     def read_config_dict(self) -> dict:
-        return json.loads(self.path(CONFIG_FILE).read_text())
+        path = self.path(CONFIG_FILE)
+        try:
+            return json.loads(path.read_text())
+        except json.JSONDecodeError as error:
+            raise ConfigError(f"{path} is damaged (not JSON: {error}); restore it from a "
+                              "copy, or start the run over with `python -m vsgjax.train "
+                              "--restart` (which moves the old run aside)") from None
 
     def load_config(self) -> Config:
         if not self.has_config():
@@ -95,12 +111,22 @@ class RunWriter(RunDir):
 
     replay_steps = 0  # steps in the seed's replay (the trainer keeps it current)
 
-    def __init__(self, config: Config, logdir: Path):
+    def __init__(self, config: Config, logdir: Path, *, restart: bool = False):
+        """Lock the directory, then (``restart``) move its old contents aside, or check that
+        it holds this config's run and set its corrupt checkpoints aside."""
         super().__init__(logdir)
         self.config, self.seed = config, config.train.seed
-        self.logdir.mkdir(parents=True, exist_ok=True)
-        self._check_config()
+        make_output_dir(self.logdir, "log directory")
+        self.lock = RunLock(self.logdir)
+        try:
+            self.moved_to = move_aside(self.logdir) if restart else None
+            self._check_config()
+            set_aside_corrupt(self.logdir, self.ckpt_dir)
+        except BaseException:
+            self.lock.release()
+            raise
         self.store = EpisodeStore(self.episodes_dir)
+        self.logger: Logger | None = None  # opened by open_logs
         self.scores: dict = {"xs": [], "ys": []}
         self.episodes = 0
         self.checkpoint_path: Path | None = None
@@ -108,13 +134,14 @@ class RunWriter(RunDir):
         self.window_episodes: list[dict] = []
 
     def _check_config(self) -> None:
-        """A logdir keeps its model and env config; only ``train.*`` may change on resume."""
-        if not self.has_config() or not self.checkpoints():
+        """A logdir with data (checkpoints or episodes) keeps its model and env config; only
+        ``train.*`` may change on resume."""
+        if not self.has_config() or not (self.checkpoints() or self.episode_paths()):
             return
         changed = config_changes(self.read_config_dict(), to_dict(self.config))
         if changed:
             raise ConfigError(f"{self.logdir} holds a run with a different config ("
-                              + "; ".join(changed) + "); use another --logdir to start a new run")
+                              + "; ".join(changed) + f"); {restart_hint(self.logdir)}")
 
     def load(self, restored: checkpoint.Checkpoint) -> None:
         self.scores = restored.meta["scores"]
@@ -174,5 +201,11 @@ class RunWriter(RunDir):
         last = checkpoint.latest(self.ckpt_dir)
         return f"the last good checkpoint is {last}" if last else "no checkpoint was saved yet"
 
+    def release(self) -> None:
+        """Unlock the directory (another process may train into it)."""
+        self.lock.release()
+
     def close(self) -> None:
-        self.logger.close()
+        if self.logger is not None:
+            self.logger.close()
+        self.release()

@@ -1,0 +1,343 @@
+"""The run directory under faults and bad inputs: nothing lost, nothing mixed, no tracebacks.
+
+Each case of issue 18's table: corrupt checkpoints, another run's data, a second process, a
+log directory that cannot be written, a failing write, bad values and flags. The run directory
+of a real (tiny) run is tests/fixtures/rundir_v1's bbs run; the rest is written here.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import bbs
+import vsgjax
+from experiments import launch, report
+from vsgjax import evaluate, train
+from vsgjax.config import ConfigError, make_config
+from vsgjax.data import checkpoint
+from vsgjax.data.replay import EpisodeStore
+from vsgjax.data.replay.store import read_episode
+from vsgjax.loop.rundir import RunWriter
+from vsgjax.loop.rundir_guard import LOCK_FILE, PREVIOUS_DIR, RunDirError
+
+ROOT = Path(__file__).resolve().parents[2]
+FIXTURE = ROOT / "tests" / "fixtures" / "rundir_v1" / "bbs_basic-vsg-debug"
+OVERRIDES = ["env.time_limit=200", "train.eval_every=200", "train.ckpt_every=100"]
+FLAGS = ["--task", "bbs_basic", "--model", "vsg", "--size", "debug", "--no-progress"]
+CKPT = "ckpt-000000000320.ckpt"
+
+
+@pytest.fixture
+def old_run(tmp_path) -> Path:
+    """A copy of a finished tiny run (one checkpoint at env step 320, one episode)."""
+    logdir = tmp_path / "run"
+    shutil.copytree(FIXTURE, logdir)
+    return logdir
+
+
+@pytest.fixture(autouse=True)
+def no_compilation_cache(monkeypatch):
+    monkeypatch.setattr(train, "enable_compilation_cache", lambda: None)
+
+
+def config(*overrides: str):
+    return make_config("bbs_basic", "vsg", "debug", [*OVERRIDES, *overrides])
+
+
+def run_train(capsys, logdir: Path, *args: str) -> tuple[int, str, str]:
+    code = train.main([*FLAGS, "--logdir", str(logdir), *OVERRIDES, *args])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_line_error(err: str) -> str:
+    """The one ``error: ...`` line a command printed to stderr (and nothing else)."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    return lines[0]
+
+
+def snapshot(logdir: Path) -> dict[str, bytes]:
+    """Every file under ``logdir`` (but the lock) and its bytes."""
+    return {str(p.relative_to(logdir)): p.read_bytes() for p in sorted(logdir.rglob("*"))
+            if p.is_file() and p.name != LOCK_FILE}
+
+
+def save_checkpoints(logdir: Path, steps: list[int]) -> None:
+    for step in steps:
+        checkpoint.save(logdir / "checkpoints", step, {"x": np.full(3, step)}, {"step": step})
+
+
+# --- corrupt checkpoints ---------------------------------------------------------------------
+
+
+def test_every_checkpoint_corrupt_is_refused_and_nothing_changes(old_run, capsys):
+    path = old_run / "checkpoints" / CKPT
+    path.write_bytes(path.read_bytes()[:1000])  # truncated
+    before = snapshot(old_run)
+    code, _, err = run_train(capsys, old_run)
+    assert code == 2
+    line = one_line_error(err)
+    assert f"every checkpoint of {old_run} is corrupt ({path}: payload has" in line
+    assert "nothing was changed; rerun with --restart" in line
+    assert snapshot(old_run) == before
+
+
+def test_restart_moves_the_old_contents_aside_and_deletes_nothing(old_run):
+    (old_run / "checkpoints" / CKPT).write_bytes(b"garbage")
+    before = snapshot(old_run)
+    run = RunWriter(config(), old_run, restart=True)
+    try:
+        assert run.moved_to.parent == old_run / PREVIOUS_DIR
+        assert snapshot(run.moved_to) == before
+        assert sorted(p.name for p in old_run.iterdir()) == [LOCK_FILE, "episodes",
+                                                              PREVIOUS_DIR]
+        assert not run.checkpoints() and not run.episode_paths()
+    finally:
+        run.close()
+    again = RunWriter(config(), old_run, restart=True)  # a second restart keeps the first
+    again.close()
+    assert len(list((old_run / PREVIOUS_DIR).iterdir())) == 2
+
+
+def test_one_corrupt_checkpoint_is_set_aside_and_not_counted_among_the_kept(tmp_path):
+    save_checkpoints(tmp_path, [10, 20, 30])
+    bad = checkpoint.checkpoint_path(tmp_path / "checkpoints", 40)
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.warns(UserWarning, match=f"corrupt checkpoint {bad} .* moved to"):
+        run = RunWriter(config(), tmp_path)
+    try:
+        assert [step for step, _ in run.checkpoints()] == [10, 20, 30]
+        assert (tmp_path / "checkpoints" / "corrupt" / bad.name).read_bytes() == (
+            b"not a checkpoint")
+        save_checkpoints(tmp_path, [50])
+        assert [step for step, _ in run.checkpoints()] == [20, 30, 50]  # 3 kept, all good
+        assert (tmp_path / "checkpoints" / "corrupt" / bad.name).exists()
+    finally:
+        run.release()
+
+
+def test_a_run_with_a_corrupt_newest_checkpoint_resumes_from_the_one_before(old_run, capsys):
+    good = old_run / "checkpoints" / CKPT
+    newer = checkpoint.checkpoint_path(old_run / "checkpoints", 400)
+    newer.write_bytes(good.read_bytes()[:-10])
+    with pytest.warns(UserWarning, match="moved to"):
+        code, out, err = run_train(capsys, old_run, "train.steps=320")
+    assert code == 0, err
+    assert f"resuming from {CKPT}: env step 320" in out
+    assert (old_run / "checkpoints" / "corrupt" / newer.name).exists()
+    assert [p.name for _, p in checkpoint.list_checkpoints(old_run / "checkpoints")] == [CKPT]
+
+
+# --- another run's data, a second process ----------------------------------------------------
+
+
+def test_episodes_of_another_config_without_a_checkpoint_are_refused(old_run, capsys):
+    shutil.rmtree(old_run / "checkpoints")
+    before = snapshot(old_run)
+    code, _, err = run_train(capsys, old_run, "env.time_limit=400")
+    assert code == 2
+    line = one_line_error(err)
+    assert (f"{old_run} holds a run with a different config (env.time_limit: 200 -> 400); "
+            "rerun with --restart") in line
+    assert snapshot(old_run) == before
+
+
+LOCKER = ("import sys, time; from pathlib import Path; "
+          "from vsgjax.loop.rundir_guard import RunLock; "
+          "lock = RunLock(Path(sys.argv[1])); print('locked', flush=True); time.sleep(120)")
+
+
+def test_a_second_process_is_refused_naming_the_holder_and_a_killed_ones_lock_is_taken(
+        tmp_path, capsys):
+    holder = subprocess.Popen([sys.executable, "-c", LOCKER, str(tmp_path)], cwd=ROOT,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(RunDirError, match=f"in use by another training process "
+                                              f"\\(pid {holder.pid}, which holds"):
+            RunWriter(config(), tmp_path)
+        code, _, err = run_train(capsys, tmp_path)
+        assert code == 2 and f"(pid {holder.pid}," in one_line_error(err)
+    finally:
+        holder.send_signal(signal.SIGKILL)
+        holder.wait()
+    run = RunWriter(config(), tmp_path)  # the killed holder's lock is taken over
+    assert (tmp_path / LOCK_FILE).read_text().strip() == str(os.getpid())
+    run.release()
+
+
+def test_the_lock_is_released_when_a_trainer_fails_to_start(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").write_text("a file")
+    with pytest.raises(ValueError, match="is a file"):
+        train.make_trainer([config(), config("train.seed=1")], [tmp_path / "a", tmp_path / "b"],
+                           progress=False)
+    RunWriter(config(), tmp_path / "a").release()  # seed 0's directory is free again
+
+
+# --- log directories that cannot be written --------------------------------------------------
+
+
+def test_a_log_dir_that_is_a_file_or_under_a_file_is_a_one_line_error(tmp_path, capsys):
+    file = tmp_path / "file"
+    file.write_text("x")
+    for logdir, message in ((file, f"log directory {file} is a file"),
+                            (file / "run", f"log directory {file / 'run'} is under the file "
+                                           f"{file}")):
+        code, _, err = run_train(capsys, logdir)
+        assert code == 2 and message in one_line_error(err)
+    assert file.read_text() == "x"
+
+
+@pytest.fixture
+def mount_tmpfs(tmp_path):
+    """``mount(options) -> directory``: a tmpfs (skipped where this user cannot mount one)."""
+    mounted = []
+
+    def mount(options: str) -> Path:
+        directory = tmp_path / f"mnt{len(mounted)}"
+        directory.mkdir()
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(directory)],
+                              capture_output=True)
+        if done.returncode != 0:
+            pytest.skip(f"cannot mount a tmpfs here: {done.stderr.decode().strip()}")
+        mounted.append(directory)
+        return directory
+
+    yield mount
+    for directory in mounted:
+        subprocess.run(["umount", str(directory)], check=True)
+
+
+def test_a_read_only_log_dir_is_a_one_line_error(mount_tmpfs, capsys):
+    read_only = mount_tmpfs("ro,size=1m")
+    for logdir in (read_only, read_only / "run"):
+        code, _, err = run_train(capsys, logdir)
+        assert code == 2
+        assert f"log directory {logdir} cannot be" in one_line_error(err)
+        assert "read-only or no permission" in err
+
+
+# --- failing writes --------------------------------------------------------------------------
+
+
+def test_a_full_disk_during_a_checkpoint_leaves_the_previous_one(mount_tmpfs):
+    directory = mount_tmpfs("size=256k")
+    checkpoint.save(directory, 10, {"x": np.zeros(1000)}, {})
+    with pytest.raises(checkpoint.WriteError, match=r"cannot write .*ckpt-000000000020\.ckpt: "
+                                                    "No space left on device"):
+        checkpoint.save(directory, 20, {"x": np.zeros(100_000)}, {})
+    assert [p.name for p in directory.iterdir()] == ["ckpt-000000000010.ckpt"]  # no temp file
+    tree, _ = checkpoint.load(directory / "ckpt-000000000010.ckpt", {"x": np.zeros(1000)})
+    assert tree["x"].shape == (1000,)
+
+
+def failing_fsync(fd):
+    raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_a_failing_write_names_the_path_and_keeps_the_previous_checkpoint_and_episodes(
+        tmp_path, monkeypatch):
+    run = RunWriter(config(), tmp_path)
+    save_checkpoints(tmp_path, [10])
+    store = EpisodeStore(tmp_path / "episodes")
+    episode = read_episode(next((FIXTURE / "episodes").glob("*.mcap")))
+    store.write(episode)
+    with monkeypatch.context() as patch:
+        patch.setattr(checkpoint.os, "fsync", failing_fsync)
+        with pytest.raises(checkpoint.WriteError, match=r"cannot write .*ckpt-000000000020"
+                                                        r"\.ckpt: No space left on device; "
+                                                        "the file is as it was before"):
+            save_checkpoints(tmp_path, [20])
+        with pytest.raises(checkpoint.WriteError, match=r"cannot write .*episodes/.*\.mcap"):
+            store.write(episode)
+    assert [step for step, _ in run.checkpoints()] == [10]
+    assert checkpoint.restore(tmp_path / "checkpoints", {"x": np.zeros(3, int)}).step == 10
+    assert len(store.load()) == 1
+    assert not [p for p in tmp_path.rglob("*.tmp")]
+    run.release()
+
+
+def test_train_reports_a_failing_write_in_one_line(old_run, capsys, monkeypatch):
+    def failing_save(*args, **kwargs):
+        raise checkpoint.WriteError("cannot write x.ckpt: No space left")
+
+    monkeypatch.setattr(checkpoint, "save", failing_save)
+    before = (old_run / "checkpoints" / CKPT).read_bytes()
+    code, _, err = run_train(capsys, old_run, "train.steps=320")
+    assert code == 1 and one_line_error(err) == "error: cannot write x.ckpt: No space left"
+    assert (old_run / "checkpoints" / CKPT).read_bytes() == before
+
+
+# --- bad values and flags --------------------------------------------------------------------
+
+BAD_TRAIN_ARGS = {
+    ("train.steps=-5",): "config key 'train.steps' got -5; valid: >= 1",
+    ("train.steps=0",): "config key 'train.steps' got 0; valid: >= 1",
+    ("train.batch=0",): "config key 'train.batch' got 0; valid: >= 1",
+    ("train.batch=-3",): "config key 'train.batch' got -3; valid: >= 1",
+    ("train.length=300",): "train.length=300 is longer than an episode of bbs_basic can be "
+                           "(52 stored steps",
+    ("train.eval_episodes=0",): "config key 'train.eval_episodes' got 0; valid: >= 1",
+    ("train.prefill=-1",): "config key 'train.prefill' got -1; valid: >= 0",
+    ("--seed", "-1"): "--seed -1: valid: an integer in [0, 1073741824]",
+}
+
+
+@pytest.mark.parametrize("args", BAD_TRAIN_ARGS)
+def test_a_bad_value_is_one_line_naming_it_and_nothing_is_written(args, tmp_path, capsys):
+    code, _, err = run_train(capsys, tmp_path / "run", *args)
+    assert code == 2 and BAD_TRAIN_ARGS[args] in one_line_error(err)
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_truncated_config_json_is_an_error_naming_the_file(old_run, capsys):
+    path = old_run / "config.json"
+    path.write_text(path.read_text()[:100])
+    message = f"{path} is damaged (not JSON: "
+    code, _, err = run_train(capsys, old_run)
+    assert code == 2 and message in one_line_error(err) and "--restart" in err
+    assert evaluate.main([str(old_run)]) == 2
+    assert message in one_line_error(capsys.readouterr().err)
+    with pytest.raises(ConfigError, match="is damaged"):
+        vsgjax.load(old_run)
+
+
+def test_evaluate_flags_are_checked_before_running(old_run, tmp_path, capsys):
+    cases = {("--episodes", "0"): "--episodes 0: valid: an integer >= 1",
+             ("--seed", "-2"): "--seed -2: valid: an integer in",
+             ("--output", str(tmp_path)): f"--output {tmp_path} is a directory",
+             ("--output", str(old_run / "config.json" / "x.jsonl")): (
+                 f"--output's directory {old_run / 'config.json'} is a file")}
+    for args, message in cases.items():
+        assert evaluate.main([str(old_run), *args]) == 2
+        assert message in one_line_error(capsys.readouterr().err), args
+
+
+def test_launch_root_and_report_out_that_are_files_are_one_line_errors(tmp_path, capsys):
+    file = tmp_path / "file"
+    file.write_text("x")
+    assert launch.main(["bbs_basic", "--size", "debug", "--root", str(file),
+                        "--backend", "print"]) == 2
+    assert f"--root {file} is a file" in one_line_error(capsys.readouterr().err)
+    assert report.main(["bbs_basic", "--size", "debug", "--root", str(tmp_path),
+                        "--out", str(file)]) == 2
+    assert f"--out {file} is a file" in one_line_error(capsys.readouterr().err)
+    assert file.read_text() == "x"
+
+
+def test_bbs_make_refuses_to_override_its_variant():
+    with pytest.raises(ValueError, match=r"bbs.make\('bbs_basic', num_distractors=2\): variant "
+                                         r"bbs_basic has num_distractors=0; valid: that value"):
+        bbs.make("bbs_basic", num_distractors=2)
+    assert bbs.make("bbs_basic_d2", num_distractors=2, time_limit=10).num_distractors == 2

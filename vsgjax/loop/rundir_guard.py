@@ -1,0 +1,115 @@
+"""What training checks and does before it writes into a run directory, so that a run is never
+silently replaced, mixed with another or pruned of its only good data.
+
+* the directory exists or is created (:func:`vsgjax.outdir.make_output_dir`).
+* :class:`RunLock`: one training process per run directory.
+* :func:`move_aside` (``--restart``): the old contents go to ``previous/<UTC time>/``; nothing
+  is deleted.
+* :func:`set_aside_corrupt`: a corrupt checkpoint goes to ``checkpoints/corrupt/`` (out of the
+  kept ones); when every checkpoint is corrupt, nothing is touched and the run is refused.
+"""
+
+from __future__ import annotations
+
+import datetime
+import fcntl
+import os
+import warnings
+from pathlib import Path
+
+from vsgjax.data import checkpoint
+
+LOCK_FILE = ".lock"
+PREVIOUS_DIR = "previous"  # ``--restart`` moves the old contents into previous/<UTC time>/
+CORRUPT_DIR = "corrupt"  # under checkpoints/
+RESTART_HINT = ("rerun with --restart to move the old contents to {previous}/ and start over, "
+                "or use another --logdir")
+
+
+class RunDirError(ValueError):
+    """A run directory training cannot write into as asked (nothing in it was changed)."""
+
+
+def restart_hint(logdir: Path) -> str:
+    return RESTART_HINT.format(previous=logdir / PREVIOUS_DIR / "<time>")
+
+
+class RunLock:
+    """An exclusive lock on ``<logdir>/.lock``, held while a training process writes the run.
+
+    ``fcntl.flock`` rather than a pid file alone: the kernel drops the lock when its holder's
+    file is closed, which happens however the process ends (SIGKILL included), so a lock left
+    by a killed process is taken over by the next run with no staleness check. The file holds
+    the holder's pid for the message of a second process. (The lock is not inherited across
+    ``exec``; env workers are spawned, so they do not keep it.)
+    """
+
+    def __init__(self, logdir: Path):
+        self.path = logdir / LOCK_FILE
+        try:
+            self._file = open(self.path, "a+")  # held open: the lock lives with it
+        except OSError as error:
+            raise RunDirError(f"log directory {logdir} cannot be written: "
+                              f"{error.strerror}") from None
+        try:
+            fcntl.flock(self._file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self._file.seek(0)
+            holder = self._file.read().strip() or "unknown"
+            self._file.close()
+            raise RunDirError(f"log directory {logdir} is in use by another training process "
+                              f"(pid {holder}, which holds {self.path}); wait for it to end or "
+                              "stop it, or use another --logdir") from None
+        self._file.seek(0)
+        self._file.truncate()
+        self._file.write(f"{os.getpid()}\n")
+        self._file.flush()
+
+    def release(self) -> None:
+        self._file.close()
+
+
+def move_aside(logdir: Path) -> Path | None:
+    """Move every entry of ``logdir`` but the lock and ``previous/`` into
+    ``previous/<UTC time>/``; returns that directory (None when there was nothing to move)."""
+    entries = [p for p in sorted(logdir.iterdir()) if p.name not in (LOCK_FILE, PREVIOUS_DIR)]
+    if not entries:
+        return None
+    stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
+    target = _unused(logdir / PREVIOUS_DIR / stamp)
+    target.mkdir(parents=True)
+    for entry in entries:
+        entry.rename(target / entry.name)
+    return target
+
+
+def set_aside_corrupt(logdir: Path, ckpt_dir: Path) -> list[Path]:
+    """Move each corrupt checkpoint to ``checkpoints/corrupt/`` with a warning; returns where
+    they went. RunDirError, moving nothing, when every checkpoint is corrupt."""
+    found = [path for _, path in checkpoint.list_checkpoints(ckpt_dir)]
+    corrupt = {}
+    for path in found:
+        try:
+            checkpoint.verify(path)
+        except checkpoint.CorruptCheckpointError as error:
+            corrupt[path] = str(error)
+    if found and len(corrupt) == len(found):
+        listed = "; ".join(f"{path}: {reason}" for path, reason in corrupt.items())
+        raise RunDirError(f"every checkpoint of {logdir} is corrupt ({listed}); nothing was "
+                          f"changed; {restart_hint(logdir)}")
+    moved = []
+    for path, reason in corrupt.items():
+        target = _unused(ckpt_dir / CORRUPT_DIR / path.name)
+        target.parent.mkdir(exist_ok=True)
+        path.rename(target)
+        warnings.warn(f"corrupt checkpoint {path} ({reason}) moved to {target}", stacklevel=2)
+        moved.append(target)
+    return moved
+
+
+def _unused(path: Path) -> Path:
+    """``path``, or ``path`` with the first free ``-<n>`` suffix when it exists."""
+    candidate, n = path, 1
+    while candidate.exists():
+        candidate, n = path.with_name(f"{path.name}-{n}"), n + 1
+    return candidate
