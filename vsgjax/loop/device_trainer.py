@@ -9,6 +9,7 @@ envs need none, since every call starts by resetting them.
 
 from __future__ import annotations
 
+import functools
 import time
 from pathlib import Path
 
@@ -35,6 +36,20 @@ from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters
 
 
+@functools.cache
+def jitted_programs(program: DeviceProgram, seeds: int) -> tuple:
+    """``({training: episode call}, pretrain, evaluate)`` over ``seeds`` stacked seeds, jitted;
+    one set per program in a process, so a resumed trainer reuses its compilations."""
+    train = program.config.train
+    episode = {training: jax.jit(seed_batched(
+        lambda state, training=training: program.episode(state, training), seeds))
+        for training in (False, True)}
+    pretrain = jax.jit(seed_batched(lambda state: program.pretrain(state, train.pretrain), seeds))
+    evaluate = jax.jit(seed_batched(
+        lambda params, key: program.evaluate(params, key, train.eval_episodes), seeds))
+    return episode, pretrain, evaluate
+
+
 class DeviceTrainer(LoopDriver):
     """Train one or more seeds of an ``mjx_`` task with the compiled device program."""
 
@@ -59,14 +74,8 @@ class DeviceTrainer(LoopDriver):
 
     def _compile(self, seeds: int) -> None:
         """The jitted programs of ``seeds`` stacked seeds (again after seeds stop)."""
-        train = self.config.train
-        self._episode = {training: jax.jit(seed_batched(
-            lambda state, training=training: self.program.episode(state, training), seeds))
-            for training in (False, True)}
-        self._pretrain = jax.jit(seed_batched(
-            lambda state: self.program.pretrain(state, train.pretrain), seeds))
-        self._evaluate = jax.jit(seed_batched(
-            lambda params, key: self.program.evaluate(params, key, train.eval_episodes), seeds))
+        episode, self._pretrain, self._evaluate = jitted_programs(self.program, seeds)
+        self._episode = dict(episode)
 
     def _restore(self) -> tuple[LoopState, Counters, bool]:
         def restore(run: RunWriter, max_step: int | None):
