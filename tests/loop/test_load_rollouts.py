@@ -229,4 +229,6 @@ def test_the_notebook_executes_on_the_run(logdir, monkeypatch):
     client.execute()
     outputs = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.outputs]
     assert not [o for o in outputs if o.output_type == "error"]
-    assert sum(o.output_type == "display_data" for o in outputs) == 3  # frames, gates, rewards
+    # frames, gates, gate statistics, rewards
+    assert sum(o.output_type == "display_data" for o in outputs) == 4
+    assert any("gates/open" in o.get("text", "") for o in outputs if o.output_type == "stream")

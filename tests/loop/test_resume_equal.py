@@ -1,5 +1,7 @@
 """A run stopped by SIGINT and resumed, against the same run uninterrupted (CPU, same seed).
 
+The device loop's uninterrupted run also checks its ``gates/*`` lines (tests/support/gate_lines.py).
+
 The device loop's checkpoint holds its whole state (agent, device replay, PRNG key) and each
 of its calls starts by resetting the envs, so the resumed run must reach the uninterrupted
 run's state, training metrics and scores exactly. The host loop's envs are not checkpointed:
@@ -20,6 +22,7 @@ import jax
 import numpy as np
 import pytest
 
+from tests.support.gate_lines import check_equals_loaded, check_lines, gate_lines
 from vsgjax.config import make_config
 from vsgjax.data import checkpoint
 from vsgjax.loop.device_trainer import DeviceTrainer
@@ -93,6 +96,11 @@ def test_device_loop_stopped_and_resumed_equals_the_uninterrupted_run(tmp_path):
     xs, ys = scores(tmp_path / "whole")
     assert xs == [160, 240, 320] and scores(tmp_path / "parts") == (xs, ys)
     assert records(tmp_path / "parts") == records(tmp_path / "whole")  # train/*, gates/*, ...
+    lines = gate_lines(tmp_path / "whole")  # a log per call: the last at the final checkpoint
+    check_lines(lines, final_step=320, first_step=160)
+    batch = whole.gate_batch(0)
+    assert np.asarray(batch["is_first"]).shape == (3, 8)
+    check_equals_loaded(tmp_path / "whole", lines[-1], batch)
 
 
 @pytest.mark.slow

@@ -1,0 +1,42 @@
+"""Checks of the ``gates/*`` lines both training loops log (vsgjax/loop/gate_logging.py)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+import vsgjax
+
+SUMMARY_KEYS = {"gates/open", "gates/open_prior", "gates/prob_post", "gates/prob_prior",
+                "gates/kl", "gates/open_per_step_std", "gates/open_per_unit_std",
+                "gates/never_open", "gates/always_open", "gates/closed_run_mean"}
+
+
+def gate_lines(logdir: Path) -> list[dict]:
+    records = map(json.loads, (logdir / "metrics.jsonl").read_text().splitlines())
+    return [r for r in records if any(key.startswith("gates/") for key in r)]
+
+
+def check_lines(lines: list[dict], final_step: int, first_step: int) -> None:
+    """One line per log from the first training log to the end, every value a fraction
+    (the KL and the run length excepted) and not constant."""
+    steps = [line["step"] for line in lines]
+    assert steps[0] == first_step and steps[-1] == final_step and steps == sorted(set(steps))
+    for line in lines:
+        assert set(line) == {"step", *SUMMARY_KEYS}
+        fractions = [v for k, v in line.items() if k not in ("step", "gates/kl",
+                                                             "gates/closed_run_mean")]
+        assert all(0.0 <= v <= 1.0 for v in fractions), line
+        assert 0 < line["gates/open"] < 1 and line["gates/kl"] > 0
+        assert line["gates/closed_run_mean"] >= 1
+    assert len({line["gates/kl"] for line in lines}) > 1  # the model changes between logs
+
+
+def check_equals_loaded(logdir: Path, line: dict, batch: dict) -> None:
+    run = vsgjax.load(logdir)
+    assert run.step == line["step"]
+    stats = vsgjax.gate_statistics(run.params, batch).summary()
+    assert stats == pytest.approx({k: v for k, v in line.items() if k != "step"},
+                                  rel=1e-6, abs=1e-7)
