@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from tests.model.test_agent import make_batch
 from vsgjax.config import ConfigError, make_config
 from vsgjax.model.agent import Agent
 from vsgjax.model.precision import compute_dtype, matmul
@@ -27,8 +28,7 @@ MODELS = ("dreamerv1", "dreamerv2", "vsg", "svsg", "ssm")
 slow = pytest.mark.slow
 UPDATE_MODELS = ["vsg", "dreamerv2", *(pytest.param(m, marks=slow) for m in ("svsg", "dreamerv1",
                                                                           "ssm"))]
-BATCH, LENGTH = 2, 3
-# float32 metrics of one agent update (init key 0, update key 1, `replay_batch`), computed by the
+# float32 metrics of one agent update (init key 0, update key 1, `make_batch`), computed by the
 # code before model.precision existed (XLA:CPU, jax 0.10.2). Exact for float32; the reference
 # that bfloat16 is compared with.
 REFERENCE = {
@@ -86,25 +86,6 @@ TERM_TOLERANCE = {"wm/image_loss": (5e-3, 0.0), "wm/reward_loss": (5e-3, 0.0),
 BF16_DOT = re.compile(r"stablehlo\.dot_general.*\(tensor<[^>]*xbf16>, tensor<[^>]*xbf16>\)")
 
 
-def replay_batch(action_dim: int, discrete: bool, seed: int = 0) -> dict:
-    """test_agent.py's batch: episode starts at t = 0 (and mid-sequence), one terminal."""
-    rng = np.random.default_rng(seed)
-    is_first = np.zeros((BATCH, LENGTH), bool)
-    is_first[:, 0] = is_first[1, 2] = True
-    if discrete:
-        action = np.eye(action_dim, dtype=np.float32)[rng.integers(0, action_dim, (BATCH, LENGTH))]
-    else:
-        action = rng.uniform(-1, 1, (BATCH, LENGTH, action_dim)).astype(np.float32)
-    is_terminal = np.zeros((BATCH, LENGTH), bool)
-    is_terminal[1, 1] = True
-    return {
-        "image": rng.integers(0, 256, (BATCH, LENGTH, 64, 64, 3), dtype=np.uint8),
-        "action": np.where(is_first[..., None], 0.0, action).astype(np.float32),
-        "reward": np.where(is_first, 0.0, rng.normal(size=(BATCH, LENGTH))).astype(np.float32),
-        "is_first": is_first, "is_terminal": is_terminal,
-    }
-
-
 def make_agent(model: str, precision: str) -> Agent:
     config = make_config("bbs_basic", model, "debug", [f"model.precision={precision}"])
     discrete = model == "dreamerv2"
@@ -115,7 +96,7 @@ def make_agent(model: str, precision: str) -> Agent:
 def _setup(model: str, precision: str):
     """(agent, batch, initial state)."""
     agent = make_agent(model, precision)
-    return agent, replay_batch(agent.action_dim, agent.discrete), agent.init(jax.random.PRNGKey(0))
+    return agent, make_batch(agent.action_dim, agent.discrete), agent.init(jax.random.PRNGKey(0))
 
 
 @functools.cache
@@ -179,7 +160,7 @@ def test_float32_update_is_unchanged():
 @pytest.mark.parametrize("model", MODELS)
 def test_float32_programs_have_no_bfloat16(model):
     agent = make_agent(model, "float32")
-    batch = replay_batch(agent.action_dim, agent.discrete)
+    batch = make_batch(agent.action_dim, agent.discrete)
     state = jax.eval_shape(agent.init, jax.random.PRNGKey(0))
     text = agent.train_step.lower(agent, state, batch, jax.random.PRNGKey(1)).as_text()
     assert "stablehlo.dot_general" in text and "bf16" not in text
