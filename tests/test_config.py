@@ -244,7 +244,7 @@ def test_a_saved_config_that_predates_a_key_counts_it_as_its_default():
 
 
 def test_readme_cpu_table_names_every_key_the_cpu_size_sets():
-    from vsgjax.config import _SIZE, _SIZE_MODEL
+    from vsgjax.config.presets import _SIZE, _SIZE_MODEL
 
     lines = README.read_text().splitlines()
     start = lines.index("### The `cpu` size (vector observations, `mjx_*` tasks)")

@@ -1,10 +1,10 @@
-"""Every config value is checked when the config is built (vsgjax/config_checks.py)."""
+"""Every config value is checked when the config is built (vsgjax/config/checks.py)."""
 
 import pytest
 
 import bbs
 from vsgjax.config import MODELS, SIZES, VECTOR_SIZES, Config, ConfigError, make_config
-from vsgjax.config_checks import (
+from vsgjax.config.checks import (
     CHECKED_AT_START,
     RANGES,
     Range,

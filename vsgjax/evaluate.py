@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from vsgjax.config_checks import RANGES
+from vsgjax.config.checks import RANGES
 from vsgjax.loop.evaluate import evaluate_logdir, format_table, write_episodes
 from vsgjax.outdir import OutputDirError, check_output_dir
 

@@ -25,7 +25,7 @@ from vsgjax.config import (
     ConfigError,
     make_config,
 )
-from vsgjax.config_checks import RANGES
+from vsgjax.config.checks import RANGES
 from vsgjax.data.checkpoint import WriteError
 from vsgjax.envs import TaskError, parse_task, resolve_loop
 from vsgjax.loop.allocator import allocator_line

@@ -1,8 +1,9 @@
 """The valid values of a built config: a range for every numeric key, and the checks between
 keys and against the task (a sequence must fit in an episode of the task).
 
-:func:`check_config` runs at the end of :func:`vsgjax.config.make_config`, so a bad value stops
-a run before it writes anything; the error names the key, the value and what is valid.
+:func:`check_config` runs at the end of :func:`~vsgjax.config.presets.make_config`, so a bad
+value stops a run before it writes anything; the error names the key, the value and what is
+valid.
 ``train.devices`` is checked against the devices JAX sees when training starts
 (:func:`vsgjax.loop.parallel.resolve_devices`).
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from vsgjax.config import Config, ConfigError
+from vsgjax.config.schema import Config, ConfigError
 
 # Seeds up to 2**30 leave room below 2**31 for the evaluation envs' offset and the env index.
 MAX_SEED = 2**30
