@@ -7,11 +7,7 @@ and 2 envs, so that one compiled call is cheap.
 from __future__ import annotations
 
 import json
-import os
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -26,7 +22,6 @@ from vsgjax.envs import TaskError
 from vsgjax.envs.mjx import make_mjx_task
 from vsgjax.keys import VECTOR_KEY
 from vsgjax.loop.device_program import DeviceProgram, DeviceReplay
-from vsgjax.loop.evaluate import evaluate_logdir
 
 ROOT = Path(__file__).resolve().parents[2]
 TASK = "mjx_cartpole_balance"
@@ -149,44 +144,6 @@ def test_loop_and_task_mismatches_are_errors_that_say_why(capsys, tmp_path):
 def command(logdir: Path, *overrides: str) -> list[str]:
     return [sys.executable, "-m", "vsgjax.train", "--task", TASK, "--size", "debug",
             "--logdir", str(logdir), "--no-progress", *SHORT, *overrides]
-
-
-@pytest.mark.slow
-def test_device_run_writes_the_log_directory_then_resumes_after_sigkill(tmp_path):
-    env = dict(os.environ, JAX_PLATFORMS="cpu")
-    long = command(tmp_path, "train.steps=100000", "train.ckpt_every=4", "train.eval_every=160")
-    run = subprocess.Popen(long, cwd=ROOT, env=env, stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 600
-    while not checkpoint.list_checkpoints(tmp_path / "checkpoints"):
-        assert run.poll() is None, run.communicate()
-        assert time.monotonic() < deadline
-        time.sleep(0.2)
-    time.sleep(1.0)
-    run.send_signal(signal.SIGKILL)
-    run.communicate()
-    killed_at = checkpoint.list_checkpoints(tmp_path / "checkpoints")[-1][0]
-    result = subprocess.run(command(tmp_path, f"train.steps={killed_at + 160}",
-                                    "train.ckpt_every=4", "train.eval_every=160"),
-                            cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
-    assert result.returncode == 0, result.stderr[-3000:]
-    lines = result.stdout.splitlines()
-    assert "loop=device" in lines[0]
-    assert lines[4].startswith(f"resuming from ckpt-{killed_at:012d}.ckpt: env step {killed_at}")
-    assert f"done: {killed_at + 160} env steps" in result.stdout
-    for name in ("config.json", "metrics.jsonl", "scores.jsonl", "eval_episodes.jsonl"):
-        assert (tmp_path / name).exists(), name
-    assert list((tmp_path / "episodes").glob("*.mcap"))
-    scores = json.loads((tmp_path / "scores.jsonl").read_text())
-    assert scores["xs"][-1] == killed_at + 160
-    records = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
-    steps = [r["step"] for r in records if "train/updates" in r]
-    assert steps == sorted(set(steps))
-    # the device replay came back whole: the resumed run trained on it without prefilling again
-    assert "prefill done" not in result.stdout
-    # python -m vsgjax.evaluate reads the loop state's agent from the device checkpoint
-    infos, step = evaluate_logdir(tmp_path, episodes=1)
-    assert step == killed_at + 160 and len(infos) == 1 and np.isfinite(infos[0]["return"])
 
 
 @pytest.mark.slow

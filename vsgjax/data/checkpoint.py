@@ -50,6 +50,7 @@ MAGIC = b"VSGJAXCK"
 FORMAT_VERSION = 1
 _HEADER = struct.Struct("<8sIQI")  # magic, version, payload length, payload crc32
 _NAME = re.compile(r"^ckpt-(\d+)\.ckpt$")
+TEMP_SUFFIX = ".tmp"  # atomic_write's hidden temporary file: .<name>.<random>.tmp
 
 
 class CorruptCheckpointError(ValueError):
@@ -81,7 +82,7 @@ def atomic_write(path: str | os.PathLike, data: bytes) -> Path:
     """
     path = Path(path)
     try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMP_SUFFIX)
     except OSError as error:
         raise WriteError(f"cannot write {path}: {error.strerror}") from error
     try:

@@ -171,7 +171,7 @@ class DeviceTrainer(LoopDriver):
                 episode = {k: np.asarray(v[i, env]) for k, v in records.items()}
                 info = {"return": float(episode["reward"].sum()),
                         "length": len(episode["reward"]) - 1}
-                run.on_episode(episode, info, self.env_steps)
+                run.on_episode(episode, info, self.env_steps, numbered=True)
 
     def log(self) -> None:
         """The train records, then each seed's ``gates/*`` line on a batch of its replay

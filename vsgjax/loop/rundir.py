@@ -32,6 +32,7 @@ from vsgjax.loop.logger import Logger, truncate_metrics
 from vsgjax.loop.rundir_guard import (
     RunLock,
     move_aside,
+    remove_interrupted_writes,
     restart_hint,
     set_aside_corrupt,
 )
@@ -122,6 +123,7 @@ class RunWriter(RunDir):
             self.moved_to = move_aside(self.logdir) if restart else None
             self._check_config()
             set_aside_corrupt(self.logdir, self.ckpt_dir)
+            remove_interrupted_writes(self.logdir, self.ckpt_dir, self.episodes_dir)
         except BaseException:
             self.lock.release()
             raise
@@ -163,8 +165,13 @@ class RunWriter(RunDir):
                   "seed": str(self.seed), **self.scores}
         checkpoint.atomic_write(self.path(SCORES_FILE), (json.dumps(record) + "\n").encode())
 
-    def on_episode(self, episode: dict, info: dict, env_steps: int) -> None:
-        self.store.write(episode)
+    def on_episode(self, episode: dict, info: dict, env_steps: int, *,
+                   numbered: bool = False) -> None:
+        """Write a finished training episode and log its ``info``. ``numbered``: name its file
+        by the run's episode count (:meth:`EpisodeStore.write`), for a loop whose resume
+        replays exactly the episodes written after its checkpoint, so that each rewrite
+        replaces its file."""
+        self.store.write(episode, number=self.episodes if numbered else None)
         self.episodes += 1
         self.window_episodes.append(info)
         self.logger.scalars(env_steps, info, prefix="episode")

@@ -7,6 +7,8 @@ silently replaced, mixed with another or pruned of its only good data.
   is deleted.
 * :func:`set_aside_corrupt`: a corrupt checkpoint goes to ``checkpoints/corrupt/`` (out of the
   kept ones); when every checkpoint is corrupt, nothing is touched and the run is refused.
+* :func:`remove_interrupted_writes`: the temporary files of writes that a killed process left
+  unfinished (never renamed into place, so never data) are removed.
 """
 
 from __future__ import annotations
@@ -105,6 +107,17 @@ def set_aside_corrupt(logdir: Path, ckpt_dir: Path) -> list[Path]:
         warnings.warn(f"corrupt checkpoint {path} ({reason}) moved to {target}", stacklevel=2)
         moved.append(target)
     return moved
+
+
+def remove_interrupted_writes(*directories: Path) -> list[Path]:
+    """Remove the temporary files of :func:`~vsgjax.data.checkpoint.atomic_write` (hidden
+    ``.<name>.<random>.tmp``) left in ``directories`` by a process that died mid-write; only
+    the lock holder calls this, so no live write is touched. Returns what was removed."""
+    removed = [path for directory in directories if directory.is_dir()
+               for path in sorted(directory.glob(f".*{checkpoint.TEMP_SUFFIX}"))]
+    for path in removed:
+        path.unlink(missing_ok=True)
+    return removed
 
 
 def _unused(path: Path) -> Path:

@@ -12,7 +12,9 @@ format of the project without the batch dimension)::
 
 MCAP schema (version 1)
 -----------------------
-* File name ``<UTC yyyymmddTHHMMSSffffff>-<8 hex>-<T>.mcap``: names sort chronologically.
+* File name ``<UTC yyyymmddTHHMMSSffffff>-<8 hex>-<T>.mcap``, or ``e<12-digit number>-<T>.mcap``
+  (the run's episode number; the device loop, whose resume rewrites the episodes after its
+  checkpoint): names sort chronologically.
 * Chunks compressed with zstd (lossless; Foxglove reads them), chunk CRCs written and checked.
 * Metadata record ``vsgjax.episode``: ``{"version": "1", "length": "<T>",
   "keys": "<JSON list of keys>"}``.
@@ -63,6 +65,7 @@ from vsgjax.keys import EPISODE_DTYPES, IMAGE_KEY
 SCHEMA_VERSION = "1"
 EPISODE_METADATA = "vsgjax.episode"
 STEP_NS = 50_000_000  # nominal time between steps in the file (20 Hz)
+NUMBERED_PREFIX = "e"  # sorts after the time-named files ("2...") of an older run
 _IMAGE_ENCODINGS = {1: "mono8", 3: "rgb8"}
 _RAW_IMAGE_SCHEMA = {
     "title": "foxglove.RawImage",
@@ -228,12 +231,17 @@ class EpisodeStore:
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
 
-    def write(self, episode: Mapping[str, np.ndarray]) -> Path:
-        """Atomically write ``episode`` to a new file; return its path."""
+    def write(self, episode: Mapping[str, np.ndarray], number: int | None = None) -> Path:
+        """Atomically write ``episode``; return its path. The file is new, named by the time,
+        or, given its ``number`` in the run, ``e<number>-<T>.mcap``, which a rewrite of the
+        same episode replaces."""
         data = encode_episode(episode)
-        stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%S%f")
-        name = f"{stamp}-{uuid.uuid4().hex[:8]}-{len(episode['is_first'])}.mcap"
-        return atomic_write(self.directory / name, data)
+        if number is None:
+            stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%S%f")
+            stem = f"{stamp}-{uuid.uuid4().hex[:8]}"
+        else:
+            stem = f"{NUMBERED_PREFIX}{number:012d}"
+        return atomic_write(self.directory / f"{stem}-{len(episode['is_first'])}.mcap", data)
 
     def paths(self) -> list[Path]:
         """Every episode file, oldest first (temp files of interrupted writes excluded)."""
