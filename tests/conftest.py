@@ -16,6 +16,7 @@ import jax  # noqa: E402
 import pytest  # noqa: E402
 
 BREAK_ACTOR_GRAD = os.environ.get("VSGJAX_BREAK_ACTOR_GRAD") == "1"
+BREAK_PERCEPTION = os.environ.get("VSGJAX_BREAK_PERCEPTION") == "1"
 
 
 @pytest.fixture
@@ -34,6 +35,24 @@ def actor_learns(monkeypatch) -> bool:
 
         monkeypatch.setattr(behaviour, "actor_loss", broken)
     return not BREAK_ACTOR_GRAD
+
+
+@pytest.fixture
+def perception_works(monkeypatch) -> bool:
+    """Whether the world model sees the observations: with ``VSGJAX_BREAK_PERCEPTION=1`` the
+    encoder's embedding is multiplied by zero (in training and in acting), and every learning
+    test that uses this fixture must then FAIL: that shows it measures learning from what the
+    agent sees."""
+    if BREAK_PERCEPTION:
+        from vsgjax.model.world_model import WorldModel
+
+        original = WorldModel.encode
+
+        def blind(self, params, obs):
+            return 0.0 * original(self, params, obs)
+
+        monkeypatch.setattr(WorldModel, "encode", blind)
+    return not BREAK_PERCEPTION
 
 
 @pytest.fixture(autouse=True, scope="module")

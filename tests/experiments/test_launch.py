@@ -1,8 +1,8 @@
 """Tests of ``python -m experiments.launch`` (and ``vsgjax.evaluate --output``) on the CPU.
 
 The experiments are small TOML files written into a temporary ``--definitions`` directory:
-``two`` (a 400-step and a 4000-step debug run), ``two_eval`` (evaluates them) and ``one`` (one
-2000-step run). Launchers and jobs are subprocesses sharing one XLA compilation cache, so only
+``two`` (a 400-step and a 1500-step debug run), ``two_eval`` (evaluates them) and ``one`` (one
+1000-step run). Launchers and jobs are subprocesses sharing one XLA compilation cache, so only
 the first training run compiles.
 """
 
@@ -28,7 +28,8 @@ from vsgjax.config import make_config, to_dict
 ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT = 600
 OVERRIDES = '["env.time_limit=200", "train.ckpt_every=2"]'  # 51-step episodes, many checkpoints
-SHORT, LONG = 400, 4000
+SHORT, LONG = 400, 1500
+ONE = 1000  # the single run the SLURM tests stop and requeue
 DEFINITIONS = {
     "two": f"""
 description = "launcher test: a short and a long debug run"
@@ -64,7 +65,7 @@ variant = "long"
 """,
     "one": f"""
 description = "launcher test: one debug run"
-steps = 2000
+steps = {ONE}
 
 [[groups]]
 tasks = ["bbs_basic"]
@@ -271,7 +272,7 @@ def test_slurm_backend_via_submitit_local_requeues_on_preemption_and_finishes(
     assert headers(job.log) == 2, log[-3000:]
     stopped = int(re.search(r"SIGTERM: saved a checkpoint at env step (\d+)", log).group(1))
     assert f"resuming from ckpt-{stopped:012d}.ckpt" in log
-    assert launch.checkpoint_step(job.job_dir) == 2000
+    assert launch.checkpoint_step(job.job_dir) == ONE
     assert "1 jobs: 1 done" in out.read_text()
 
 
@@ -331,13 +332,13 @@ def test_sbatch_script_stops_and_requeues_itself_on_usr1_and_the_requeue_resumes
     assert (bin_dir / "calls").read_text() == "requeue 77_0\n"
     stopped = launch.checkpoint_step(job.job_dir)
     assert f"SIGTERM: saved a checkpoint at env step {stopped}" in job.log.read_text()
-    assert stopped < 2000
+    assert stopped < ONE
     again = subprocess.run(script, env=env, capture_output=True, text=True,
                            timeout=TIMEOUT)  # the requeued task
     assert again.returncode == 0, again.stdout[-3000:]
     assert headers(job.log) == 2
     assert f"resuming from ckpt-{stopped:012d}.ckpt" in job.log.read_text()
-    assert launch.checkpoint_step(job.job_dir) == 2000
+    assert launch.checkpoint_step(job.job_dir) == ONE
 
 
 # --- bad input, config differences, --status ---------------------------------------------------
