@@ -1,7 +1,7 @@
 """Tests of ``python -m experiments.launch`` (and ``vsgjax.evaluate --output``) on the CPU.
 
 The experiments are small TOML files written into a temporary ``--definitions`` directory:
-``two`` (a 400-step and a 1500-step debug run), ``two_eval`` (evaluates them) and ``one`` (one
+``two`` (a 400-step and a 2800-step debug run), ``two_eval`` (evaluates them) and ``one`` (one
 1000-step run). Launchers and jobs are subprocesses sharing one XLA compilation cache, so only
 the first training run compiles.
 """
@@ -28,7 +28,7 @@ from vsgjax.config import make_config, to_dict
 ROOT = Path(__file__).resolve().parents[2]
 TIMEOUT = 600
 OVERRIDES = '["env.time_limit=200", "train.ckpt_every=2"]'  # 51-step episodes, many checkpoints
-SHORT, LONG = 400, 1500
+SHORT, LONG = 400, 2800  # multiples of the 40-env-step chunks
 ONE = 1000  # the single run the SLURM tests stop and requeue
 DEFINITIONS = {
     "two": f"""
