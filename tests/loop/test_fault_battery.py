@@ -25,10 +25,7 @@ two of the battery's runs: it resumes the run the previous process left killed, 
 then starts the next kill point's run in a fresh log directory, which dies. The first process
 runs the uninterrupted reference run before its faulty one. So a loop's 4 kills and 4 resumes
 take 5 processes, and a process pays for tracing the compiled programs once. The two loops'
-batteries run side by side (one driver process of each at a time). Measured on a 2-core
-machine shared with another test job: the host loop's processes 130 s of CPU time, the
-device loop's 223 s (its first process, which compiles, 112 s; each later one ~30 s, mostly
-tracing the MJX programs); the file took 7.8 minutes there.
+batteries run side by side (one driver process of each at a time).
 """
 
 from __future__ import annotations
@@ -53,6 +50,8 @@ import pytest
 from vsgjax.config import make_config
 from vsgjax.data import checkpoint
 from vsgjax.data.replay.store import read_episode
+from vsgjax.envs.mjx import make_mjx_task
+from vsgjax.loop.device_program import DeviceProgram
 from vsgjax.loop.evaluate import checkpoint_tree, evaluate_logdir
 from vsgjax.model.agent import Agent
 
@@ -488,8 +487,6 @@ def restore_target(loop: str):
     if loop == "host":
         return checkpoint_tree(jax.eval_shape(Agent(config, (64, 64, 3), 2, False).init, key),
                                key)
-    from vsgjax.envs.mjx import make_mjx_task
-    from vsgjax.loop.device_program import DeviceProgram
     env = config.env
     program = DeviceProgram(config, make_mjx_task(task, env.action_repeat, env.time_limit))
     return {"loop": jax.eval_shape(program.init, key)}
