@@ -7,7 +7,10 @@ and 2 envs, so that one compiled call is cheap.
 from __future__ import annotations
 
 import json
+import os
+import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import jax
@@ -177,3 +180,47 @@ def test_a_seeds_non_finite_update_stops_only_that_seed(tmp_path, capsys):
     updates = [json.loads(line).get("train/updates")
                for line in (tmp_path / "a" / "metrics.jsonl").read_text().splitlines()]
     assert max(u for u in updates if u is not None) > 6  # seed 0 went on training
+
+
+SPREAD = textwrap.dedent("""
+    import json, sys
+    from pathlib import Path
+    from vsgjax import train
+    root, flags = Path(sys.argv[1]), sys.argv[2:]
+    for devices in (1, 2):
+        args = ["--task", "mjx_cartpole_balance", "--size", "debug", "--seeds", "0,1",
+                "--logdir", str(root / f"d{devices}-s{{seed}}"), "--no-progress", *flags,
+                "train.steps=160", f"train.devices={devices}"]
+        assert train.main(args) == 0
+    rc = train.main(["--task", "mjx_cartpole_balance", "--size", "debug", "--seeds", "0,1,2",
+                     "--logdir", str(root / "three-s{seed}"), *flags, "train.devices=2"])
+    print("three seeds on two devices: rc", rc)
+""")
+
+
+@pytest.mark.slow
+def test_seeds_spread_over_two_forced_host_devices_train_as_on_one(tmp_path):
+    """Two seeds on two host devices (one program, each seed's loop on its own device) give
+    the metrics and scores of the same two seeds on one device, to float rounding."""
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
+               JAX_PLATFORMS="cpu")
+    result = subprocess.run([sys.executable, "-c", SPREAD, str(tmp_path), *SHORT], cwd=ROOT,
+                            env=env, capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "2 seeds in one program, spread over 2 devices" in result.stdout
+    assert "three seeds on two devices: rc 2" in result.stdout
+    assert ("error: train.devices=2 does not divide the 3 seeds: the device loop spreads "
+            "whole seeds over the devices; valid: a divisor of 3") in result.stderr
+    assert not any(tmp_path.glob("three-*"))  # nothing written
+    for seed in (0, 1):
+        one, two = (tmp_path / f"d{devices}-s{seed}" for devices in (1, 2))
+        scores = [json.loads((run / "scores.jsonl").read_text()) for run in (one, two)]
+        assert scores[0]["xs"] == scores[1]["xs"] == [160.0]
+        np.testing.assert_allclose(scores[0]["ys"], scores[1]["ys"], rtol=1e-4)
+        lines = [[json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+                 for run in (one, two)]
+        assert len(lines[0]) == len(lines[1])
+        for a, b in zip(*lines, strict=True):
+            for key, value in a.items():
+                if key.startswith(("train/", "gates/")) and not key.endswith("_s"):
+                    np.testing.assert_allclose(b[key], value, rtol=1e-4, atol=1e-6, err_msg=key)

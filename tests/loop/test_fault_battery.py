@@ -221,8 +221,8 @@ def kill_in_device_call(which, n):
             return result
         return wrapped
 
-    def patched(program, seeds):
-        episode, pretrain, evaluate = programs(program, seeds)
+    def patched(program, seeds, devices):
+        episode, pretrain, evaluate = programs(program, seeds, devices)
         episode = dict(episode)
         if which == "evaluation":
             evaluate = killing(evaluate, which)

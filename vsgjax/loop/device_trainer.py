@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vsgjax.config import Config
+from vsgjax.config import Config, ConfigError
 from vsgjax.data import checkpoint
 from vsgjax.envs.mjx import make_mjx_task
 from vsgjax.loop.device_program import DeviceProgram, LoopState
@@ -31,22 +31,26 @@ from vsgjax.loop.driver import (
     saved_counters,
 )
 from vsgjax.loop.gate_logging import gate_summary, logs_gates, probe_key
-from vsgjax.loop.parallel import seed_batched, stack, take
+from vsgjax.loop.parallel import resolve_devices, seed_batched, seed_sharding, stack, take
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters
 
 
 @functools.cache
-def jitted_programs(program: DeviceProgram, seeds: int) -> tuple:
-    """``({training: episode call}, pretrain, evaluate)`` over ``seeds`` stacked seeds, jitted;
+def jitted_programs(program: DeviceProgram, seeds: int, devices: int) -> tuple:
+    """``({training: episode call}, pretrain, evaluate)`` over ``seeds`` stacked seeds, jitted
+    with the seed axis spread over ``devices`` (:func:`~vsgjax.loop.parallel.seed_sharding`);
     one set per program in a process, so a resumed trainer reuses its compilations."""
     train = program.config.train
-    episode = {training: jax.jit(seed_batched(
-        lambda state, training=training: program.episode(state, training), seeds))
-        for training in (False, True)}
-    pretrain = jax.jit(seed_batched(lambda state: program.pretrain(state, train.pretrain), seeds))
-    evaluate = jax.jit(seed_batched(
-        lambda params, key: program.evaluate(params, key, train.eval_episodes), seeds))
+    spread = seed_sharding(seeds, devices)
+
+    def jit(function):
+        return jax.jit(seed_batched(function, seeds), in_shardings=spread, out_shardings=spread)
+
+    episode = {training: jit(lambda state, training=training: program.episode(state, training))
+               for training in (False, True)}
+    pretrain = jit(lambda state: program.pretrain(state, train.pretrain))
+    evaluate = jit(lambda params, key: program.evaluate(params, key, train.eval_episodes))
     return episode, pretrain, evaluate
 
 
@@ -61,6 +65,11 @@ class DeviceTrainer(LoopDriver):
         task = make_mjx_task(env.task, env.action_repeat, env.time_limit)
         self.program = DeviceProgram(self.config, task)
         self.program.check()
+        self.devices = resolve_devices(self.config)
+        if len(configs) % self.devices:
+            raise ConfigError(f"train.devices={self.devices} does not divide the {len(configs)} "
+                              "seeds: the device loop spreads whole seeds over the devices; "
+                              f"valid: a divisor of {len(configs)}")
         self.runs = open_runs(lambda c, d: RunWriter(c, d, restart=restart), configs, logdirs)
         try:
             self._compile(len(self.runs))
@@ -74,8 +83,10 @@ class DeviceTrainer(LoopDriver):
 
     def _compile(self, seeds: int) -> None:
         """The jitted programs of ``seeds`` stacked seeds (again after seeds stop)."""
-        episode, self._pretrain, self._evaluate = jitted_programs(self.program, seeds)
+        episode, self._pretrain, self._evaluate = jitted_programs(self.program, seeds,
+                                                                  self.devices)
         self._episode = dict(episode)
+        self._spread = seed_sharding(seeds, self.devices)
 
     def _restore(self) -> tuple[LoopState, Counters, bool]:
         def restore(run: RunWriter, max_step: int | None):
@@ -85,10 +96,15 @@ class DeviceTrainer(LoopDriver):
         restored = restore_seeds(self.runs, restore)
         if restored is None:
             states = [self.program.init(jax.random.PRNGKey(run.seed)) for run in self.runs]
-            return stack(states), Counters(), False
+            return self._place(stack(states)), Counters(), False
         for run, ckpt in zip(self.runs, restored, strict=True):
             run.load(ckpt)
-        return stack([c.tree["loop"] for c in restored]), saved_counters(restored[0]), True
+        return (self._place(stack([c.tree["loop"] for c in restored])),
+                saved_counters(restored[0]), True)
+
+    def _place(self, state: LoopState) -> LoopState:
+        """The stacked state with its seeds spread over the program's devices."""
+        return jax.device_put(state, self._spread)
 
     def describe(self) -> str:
         program = self.program
@@ -101,7 +117,11 @@ class DeviceTrainer(LoopDriver):
                 f"update {self.counters.updates}; {what}")
 
     def parallel_line(self) -> str | None:
-        return f"{len(self.runs)} seeds in one program" if len(self.runs) > 1 else None
+        if len(self.runs) == 1:
+            return None
+        devices = len(self._spread.mesh.devices)
+        return f"{len(self.runs)} seeds in one program" + (
+            f", spread over {devices} devices" if devices > 1 else "")
 
     def _update_replay_steps(self) -> None:
         stored = np.asarray(self.state.replay.stored)
@@ -160,8 +180,8 @@ class DeviceTrainer(LoopDriver):
         if not any(problems):
             return list(range(len(problems)))
         keep = self._stop_runs(problems)
-        self.state = take(self.state, keep)
         self._compile(len(keep))
+        self.state = self._place(take(self.state, keep))
         return keep
 
     def _write_episodes(self, records: dict) -> None:

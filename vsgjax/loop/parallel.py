@@ -61,8 +61,11 @@ def resolve_devices(config: Config) -> int:
     requested = config.train.devices
     visible = len(jax.devices())
     if requested < 0 or requested > visible:
+        platform = jax.devices()[0].platform
+        hint = ("; on a CPU, XLA_FLAGS=--xla_force_host_platform_device_count=N splits it into N "
+                "host devices" if platform == "cpu" else "")
         raise ConfigError(f"train.devices={requested}: this process sees {visible} device(s) "
-                          f"({jax.devices()[0].platform}); valid: 0 (all) to {visible}")
+                          f"({platform}); valid: 0 (all) to {visible}{hint}")
     return requested or default_devices()
 
 
@@ -76,6 +79,14 @@ def mesh_shape(num_seeds: int, devices: int, batch: int) -> tuple[int, int]:
             f"devices, which does not divide train.batch={batch}; valid: a device count whose "
             f"share of the batch, devices / gcd(seeds, devices), divides {batch}")
     return seed_groups, data
+
+
+def seed_sharding(num_seeds: int, devices: int) -> NamedSharding:
+    """The leading seed axis spread over ``gcd(num_seeds, devices)`` devices (the device loop's
+    mesh: one compiled program holds a seed's whole loop, so only seeds are spread)."""
+    groups = math.gcd(num_seeds, devices)
+    return NamedSharding(Mesh(np.asarray(jax.devices()[:groups]), ("seed",)),
+                         PartitionSpec("seed"))
 
 
 def seed_batched(function, num_seeds: int):
