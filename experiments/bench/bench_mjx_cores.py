@@ -57,6 +57,8 @@ def child(seeds: int, devices: int, repeats: int, barrier: str, size: str,
     """Warm up a device-loop trainer of ``seeds`` seeds, wait at the barrier, time calls."""
     import jax
 
+    from experiments.bench.bench_mjx_loop import warm
+    from experiments.bench.bench_seeds import wait_at
     from vsgjax.config import make_config
     from vsgjax.train import enable_compilation_cache, make_trainer
 
@@ -68,13 +70,11 @@ def child(seeds: int, devices: int, repeats: int, barrier: str, size: str,
         trainer = make_trainer(configs, [Path(root) / f"s{seed}" for seed in range(seeds)],
                                progress=False)
         try:
-            while not 0 <= trainer.counters.train_start < trainer.counters.agent_steps:
+            while not warm(trainer, "device"):
                 trainer.iteration()
             jax.block_until_ready(trainer.state)
             warmup = time.perf_counter() - started
-            (Path(barrier) / f"ready-{os.getpid()}").touch()
-            while not (Path(barrier) / "go").exists():
-                time.sleep(0.05)
+            wait_at(Path(barrier), os.getpid())
             calls = []
             for _ in range(repeats):
                 started = time.perf_counter()

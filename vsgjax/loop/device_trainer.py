@@ -10,6 +10,7 @@ envs need none, since every call starts by resetting them.
 from __future__ import annotations
 
 import functools
+import math
 import time
 from pathlib import Path
 
@@ -86,7 +87,6 @@ class DeviceTrainer(LoopDriver):
         episode, self._pretrain, self._evaluate = jitted_programs(self.program, seeds,
                                                                   self.devices)
         self._episode = dict(episode)
-        self._spread = seed_sharding(seeds, self.devices)
 
     def _restore(self) -> tuple[LoopState, Counters, bool]:
         def restore(run: RunWriter, max_step: int | None):
@@ -104,7 +104,7 @@ class DeviceTrainer(LoopDriver):
 
     def _place(self, state: LoopState) -> LoopState:
         """The stacked state with its seeds spread over the program's devices."""
-        return jax.device_put(state, self._spread)
+        return jax.device_put(state, seed_sharding(len(self.runs), self.devices))
 
     def describe(self) -> str:
         program = self.program
@@ -119,7 +119,7 @@ class DeviceTrainer(LoopDriver):
     def parallel_line(self) -> str | None:
         if len(self.runs) == 1:
             return None
-        devices = len(self._spread.mesh.devices)
+        devices = math.gcd(len(self.runs), self.devices)
         return f"{len(self.runs)} seeds in one program" + (
             f", spread over {devices} devices" if devices > 1 else "")
 
