@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +28,7 @@ DEFAULT_ROOT = Path("runs")
 EVALUATION_FILE = "evaluation.jsonl"  # an evaluate job's episodes, one JSON object per line
 KINDS = ("train", "evaluate", "rollouts")
 _TOP_KEYS = {"description", "reference", "size", "steps", "seeds", "groups", "figures", "source",
-             "episodes", "kind"}
+             "episodes", "kind", "seeds_per_process"}
 _GROUP_KEYS = {"tasks", "models", "variant", "method", "overrides", "steps"}
 
 
@@ -91,11 +92,20 @@ class Run:
         return make_config(self.task, self.model, self.size,
                            [f"train.seed={self.seed}", *self.config_overrides])
 
-    def train_command(self, root: Path = DEFAULT_ROOT, python: str = sys.executable) -> list[str]:
-        """``python -m vsgjax.train ...`` for this run (resumes if its logdir has a checkpoint)."""
+    def train_command(self, root: Path = DEFAULT_ROOT, python: str = sys.executable,
+                      seeds: Sequence[int] = ()) -> list[str]:
+        """``python -m vsgjax.train ...`` for this run (resumes if its logdir has a checkpoint),
+        or for ``seeds`` of its task, method and config trained in one process (each in its own
+        ``s<seed>`` directory)."""
+        seeds = tuple(seeds) or (self.seed,)
+        method_dir = self.logdir(root).parent
+        if len(seeds) == 1:
+            chosen = ["--seed", str(seeds[0]), "--logdir", str(method_dir / f"s{seeds[0]}")]
+        else:
+            chosen = ["--seeds", ",".join(str(seed) for seed in seeds),
+                      "--logdir", str(method_dir / "s{seed}")]
         return [python, "-m", "vsgjax.train", "--task", self.task, "--model", self.model,
-                "--size", self.size, "--seed", str(self.seed), "--logdir",
-                str(self.logdir(root)), "--no-progress", *self.config_overrides]
+                "--size", self.size, *chosen, "--no-progress", *self.config_overrides]
 
 
 @dataclass(frozen=True)
@@ -110,6 +120,7 @@ class Experiment:
     reference: str | None = None
     source: str | None = None  # the experiment whose runs an evaluate/rollouts experiment uses
     episodes: int = 0  # evaluation episodes per run (kind "evaluate")
+    seeds_per_process: int = 1  # seeds of one task and method the local launcher trains together
 
     def job_dir(self, run: Run, root: Path = DEFAULT_ROOT) -> Path:
         """Where this experiment's job for ``run`` writes: the run's own log directory for a
@@ -164,9 +175,13 @@ def load_experiment(name: str, size: str | None = None, seeds: int | None = None
         if source is None:
             raise ExperimentError(f"{path}: kind {kind!r} needs a source experiment")
         runs = _select(load_experiment(source, size, seeds, steps, paper_dir), path, data)
+    per_process = data.get("seeds_per_process", 1)
+    if not isinstance(per_process, int) or per_process < 1:
+        raise ExperimentError(f"{path}: seeds_per_process must be a positive integer, got "
+                              f"{per_process!r}")
     return Experiment(name, data.get("description", ""), kind, tuple(runs),
                       tuple(data.get("figures", ())), data.get("reference"), source,
-                      int(data.get("episodes", 0)))
+                      int(data.get("episodes", 0)), per_process)
 
 
 def _check_keys(path: Path, where: str, table: dict, valid: set[str]) -> None:

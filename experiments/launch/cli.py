@@ -12,6 +12,7 @@ import sys
 
 from experiments.launch.jobs import LaunchError, make_jobs
 from experiments.launch.local import LocalRunner
+from experiments.launch.process import default_backend, job_env
 from experiments.launch.script import write_print
 from experiments.launch.slurm import (
     INSTALL_SLURM,
@@ -33,7 +34,6 @@ from vsgjax.outdir import OutputDirError, check_output_dir
 BACKENDS = ("local", "slurm", "print")
 
 
-
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m experiments.launch", description=__doc__.split("\n")[0],
@@ -48,6 +48,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         help="only this task's runs (repeat or comma-separate)")
     parser.add_argument("--model", action="append", default=[],
                         help="only this model's runs (vsg, or vsg-<variant>; repeatable)")
+    parser.add_argument("--seeds-per-process", type=int, default=None,
+                        help="local: seeds of one task and method trained in one process "
+                             "(default: the experiment's seeds_per_process, else 1); on a CPU "
+                             "they are spread over as many forced host devices")
     parser.add_argument("--interval", type=float, default=None,
                         help="seconds between status tables (default 5 on a TTY, else 60)")
     slurm = parser.add_argument_group("slurm and print backends")
@@ -70,8 +74,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     args.task = [t for value in args.task for t in value.split(",") if t]
     args.model = [m for value in args.model for m in value.split(",") if m]
-    if args.jobs is not None and args.jobs < 1:
-        parser.error(f"--jobs must be a positive integer, got {args.jobs}")
+    for option in ("jobs", "seeds_per_process"):
+        value = getattr(args, option)
+        if value is not None and value < 1:
+            parser.error(f"--{option.replace('_', '-')} must be a positive integer, got {value}")
     return args
 
 
@@ -98,8 +104,14 @@ def main(argv: list[str] | None = None, out=None) -> int:
     if args.status or not jobs:
         out.write(format_table(jobs, statuses, {}) + "\n")
         return 0
+    per_process = args.seeds_per_process or experiment.seeds_per_process
     if args.backend == "local":
-        return LocalRunner(jobs, args.jobs or 1, args.interval, out).run()
+        spread = per_process > 1 and default_backend(job_env(args.jobs or 1)) == "cpu"
+        return LocalRunner(jobs, args.jobs or 1, args.interval, out,
+                           seeds_per_process=per_process, spread=spread).run()
+    if per_process > 1:
+        out.write(f"note: the {args.backend} backend runs one seed per process "
+                  f"(seeds_per_process {per_process} applies to the local backend)\n")
     todo = [job for job in jobs if statuses[job.index].launchable]
     out.write(format_table(jobs, statuses, {}) + "\n")
     if not todo:

@@ -1,9 +1,10 @@
-"""An experiment's jobs: one command per run (train it, evaluate it, or draw its rollouts)."""
+"""An experiment's jobs: one command per run (train it, evaluate it, or draw its rollouts), and
+the processes that run them (several seeds of one training configuration may share one)."""
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -65,6 +66,65 @@ class Job:
                     str(self.experiment.episodes), "--output", str(self.output)]
         return [python, "-m", "experiments.rollouts", str(self.source_dir), "--out",
                 str(self.job_dir)]
+
+
+@dataclass(frozen=True)
+class Process:
+    """The jobs one process runs: one job, or seeds of one task, method and config that train
+    in lockstep (``vsgjax.train --seeds``), spread over ``devices`` host devices if above 1."""
+
+    jobs: tuple[Job, ...]
+    devices: int = 1
+
+    @property
+    def leader(self) -> Job:
+        """The job whose directory holds the process's log."""
+        return self.jobs[0]
+
+    @property
+    def name(self) -> str:
+        if len(self.jobs) == 1:
+            return self.leader.name
+        seeds = ",".join(str(job.run.seed) for job in self.jobs)
+        return f"{self.leader.run.task}/{self.leader.run.method_dir}/s{{{seeds}}}"
+
+    def command(self, python: str = sys.executable) -> list[str]:
+        if len(self.jobs) == 1:
+            return self.leader.command(python)
+        seeds = [job.run.seed for job in self.jobs]
+        command = self.leader.run.train_command(self.leader.root, python, seeds)
+        return command + ([f"train.devices={self.devices}"] if self.devices > 1 else [])
+
+    def env(self, base: dict[str, str]) -> dict[str, str]:
+        """``base`` with ``devices`` forced host devices (XLA_FLAGS) where it spreads seeds."""
+        if self.devices == 1:
+            return base
+        flags = f"{base.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={self.devices}"
+        return dict(base, XLA_FLAGS=flags.strip())
+
+
+def group_processes(jobs: Sequence[Job], seeds_per_process: int, spread: bool,
+                    resume_step: Callable[[Job], int | None]) -> list[Process]:
+    """``jobs`` as processes, in order: training jobs of one task, method and config that
+    resume from the same checkpoint step (``resume_step``; None: a new run) in groups of up to
+    ``seeds_per_process`` (the seeds of one process train in lockstep); every other job alone.
+    With ``spread``, a group's seeds go one to a forced host device."""
+    groups: list[list[Job]] = []
+    open_group: dict[tuple, list[Job]] = {}
+    for job in jobs:
+        if job.kind != "train":
+            groups.append([job])
+            continue
+        run = job.run
+        key = (run.task, run.model, run.variant, run.size, run.steps, run.overrides,
+               resume_step(job))
+        group = open_group.get(key)
+        if group is None or len(group) >= seeds_per_process:
+            group = open_group[key] = []
+            groups.append(group)
+        group.append(job)
+    return [Process(tuple(group), len(group) if spread and len(group) > 1 else 1)
+            for group in groups]
 
 
 def make_jobs(experiment: Experiment, root: Path, tasks: Sequence[str] = (),

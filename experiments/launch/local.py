@@ -1,5 +1,6 @@
-"""The local backend: the jobs as subprocesses of the launcher, a few at a time, with a live
-status table; SIGINT / SIGTERM stop them (they save a checkpoint), a second signal kills them."""
+"""The local backend: the jobs as subprocesses of the launcher, a few processes at a time (a
+process may train several seeds), with a live status table; SIGINT / SIGTERM stop them (they
+save a checkpoint), a second signal kills them."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 
-from experiments.launch.jobs import Job
+from experiments.launch.jobs import Job, Process, group_processes
 from experiments.launch.process import (
     STOP_TIMEOUT_S,
     job_env,
@@ -21,7 +22,7 @@ from experiments.launch.process import (
     start_process,
     write_done,
 )
-from experiments.launch.status import format_table, job_status
+from experiments.launch.status import checkpoint_step, format_table, job_status
 
 
 def finished_after_exit(job: Job, code: int) -> tuple[str, str]:
@@ -62,13 +63,18 @@ class _Progress:
 
 @dataclass
 class LocalRunner:
-    """Runs jobs as subprocesses, ``parallel`` at a time, and shows their status."""
+    """Runs jobs as subprocesses, ``parallel`` processes at a time, and shows their status.
+
+    Training jobs of one task, method and config go ``seeds_per_process`` to a process (spread
+    over forced host devices with ``spread``; see :func:`group_processes`)."""
 
     jobs: list[Job]
     parallel: int = 1
     interval: float | None = None  # seconds between tables (default: 5 on a TTY, 60 otherwise)
     out: object = sys.stdout
     poll_s: float = 0.5
+    seeds_per_process: int = 1
+    spread: bool = False
     states: dict[int, str] = field(default_factory=dict)
     notes: dict[int, str] = field(default_factory=dict)
     _stop: int | None = None
@@ -83,17 +89,32 @@ class LocalRunner:
         self.out.write(text + "\n")
         self.out.flush()
 
-    def run(self) -> int:
-        tty = bool(getattr(self.out, "isatty", lambda: False)())
-        interval = self.interval if self.interval is not None else (5.0 if tty else 60.0)
+    def _queue(self) -> list[Process]:
+        """The processes to start: launchable jobs, grouped; the others' states and notes."""
         statuses = {job.index: job_status(job) for job in self.jobs}
-        queue = [job for job in self.jobs if statuses[job.index].launchable]
         for job in self.jobs:
             status = statuses[job.index]
             self.states[job.index] = "queued" if status.launchable else status.state
             if status.state == "done":
                 self.notes[job.index] = "skipped: finished before this launch"
-        running: dict[int, tuple[Job, subprocess.Popen, object, _Progress]] = {}
+        launchable = [job for job in self.jobs if statuses[job.index].launchable]
+        return group_processes(launchable, self.seeds_per_process, self.spread,
+                               lambda job: checkpoint_step(job.job_dir))
+
+    def _start(self, process: Process, env: dict[str, str]) -> tuple[subprocess.Popen, object]:
+        command = process.command()
+        log = open_log(process.leader.job_dir, command, "launch (local)")
+        for job in process.jobs[1:]:
+            open_log(job.job_dir, command, f"launch (local; output in {process.leader.log})"
+                     ).close()
+        return start_process(command, log, process.env(env)), log
+
+    def run(self) -> int:
+        tty = bool(getattr(self.out, "isatty", lambda: False)())
+        interval = self.interval if self.interval is not None else (5.0 if tty else 60.0)
+        queue = self._queue()
+        running: dict[int, tuple[Process, subprocess.Popen, object]] = {}
+        progress: dict[int, _Progress] = {}
         env = job_env(self.parallel)
         previous = {sig: signal.signal(sig, self._handle) for sig in (signal.SIGINT,
                                                                       signal.SIGTERM)}
@@ -103,39 +124,43 @@ class LocalRunner:
                 if self._stop is not None and not forwarded:
                     forwarded = True
                     name = signal.Signals(self._stop).name
-                    self._print(f"{name}: stopping {len(running)} running job(s) (SIGTERM: they "
-                                "save a checkpoint); a second signal kills them")
-                    for _, process, _, _ in running.values():
-                        send_signal(process, signal.SIGTERM)
+                    self._print(f"{name}: stopping {len(running)} running process(es) "
+                                "(SIGTERM: they save a checkpoint); a second signal kills them")
+                    for _, child, _ in running.values():
+                        send_signal(child, signal.SIGTERM)
                 if self._kill and not killed:
                     killed = True
-                    for _, process, _, _ in running.values():
-                        send_signal(process, signal.SIGKILL)
+                    for _, child, _ in running.values():
+                        send_signal(child, signal.SIGKILL)
                 while self._stop is None and queue and len(running) < self.parallel:
-                    job = queue.pop(0)
-                    command = job.command()
-                    log = open_log(job.job_dir, command, "launch (local)")
-                    running[job.index] = (job, start_process(command, log, env), log,
-                                          _Progress(time.monotonic()))
-                    self.states[job.index] = "running"
+                    process = queue.pop(0)
+                    child, log = self._start(process, env)
+                    running[process.leader.index] = (process, child, log)
+                    for job in process.jobs:
+                        self.states[job.index] = "running"
+                        progress[job.index] = _Progress(time.monotonic())
                     if not tty:
-                        self._print(f"{_clock()} started {job.index} {job.name}: {job.log}")
-                for index, (job, process, log, _) in list(running.items()):
-                    code = process.poll()
+                        self._print(f"{_clock()} started {process.leader.index} {process.name}:"
+                                    f" {process.leader.log}")
+                for index, (process, child, log) in list(running.items()):
+                    code = child.poll()
                     if code is None:
                         continue
                     log.close()
                     del running[index]
-                    state, note = finished_after_exit(job, code)
-                    self.states[index], self.notes[index] = state, note
-                    if not tty:
-                        self._print(f"{_clock()} {state} {index} {job.name}"
-                                    + (f": {note}" if note else ""))
+                    for job in process.jobs:
+                        state, note = finished_after_exit(job, code)
+                        self.states[job.index], self.notes[job.index] = state, note
+                        if not tty:
+                            self._print(f"{_clock()} {state} {job.index} {job.name}"
+                                        + (f": {note}" if note else ""))
                 now = time.monotonic()
                 finished = not running and (self._stop is not None or not queue)
                 if finished or now - last_table >= interval:
                     last_table = now
-                    table = self._table(running, now, tty)
+                    members = {job.index for process, _, _ in running.values()
+                               for job in process.jobs}
+                    table = self._table({i: progress[i] for i in members}, now, tty)
                     if tty and shown_lines:
                         self.out.write(f"\x1b[{shown_lines}F\x1b[J")
                     self._print(table)
@@ -144,9 +169,9 @@ class LocalRunner:
                     break
                 time.sleep(self.poll_s)
         finally:
-            for _, process, log, _ in running.values():  # only after an error in the loop
-                send_signal(process, signal.SIGTERM)
-                reap(process, STOP_TIMEOUT_S)
+            for _, child, log in running.values():  # only after an error in the loop
+                send_signal(child, signal.SIGTERM)
+                reap(child, STOP_TIMEOUT_S)
                 log.close()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
@@ -154,7 +179,8 @@ class LocalRunner:
             return 128 + self._stop
         return 0 if all(state == "done" for state in self.states.values()) else 1
 
-    def _table(self, running: dict, now: float, tty: bool) -> str:
+    def _table(self, running: dict[int, _Progress], now: float, tty: bool) -> str:
+        """The status table; ``running``: the progress of every job of a running process."""
         statuses, etas = {}, {}
         for job in self.jobs:
             status = job_status(job)
@@ -164,10 +190,9 @@ class LocalRunner:
                 status.note = ""  # not "resumes from ...": it is resuming
             statuses[job.index] = status
             if job.index in running and job.kind == "train":
-                progress = running[job.index][3]
+                progress = running[job.index]
                 progress.observe(status.step, now)
                 if progress.rate and status.total is not None:
                     etas[job.index] = max(0, status.total - status.step) / progress.rate
         limit = max(5, shutil.get_terminal_size().lines - 4) if tty else None
         return format_table(self.jobs, statuses, self.states, etas, limit)
-

@@ -7,6 +7,7 @@ import os
 import shlex
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,6 +29,17 @@ def job_env(parallel: int = 1) -> dict[str, str]:
                              "XLA_PYTHON_CLIENT_PREALLOCATE"} & set(env):
         env["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{0.9 / parallel:.3f}"
     return env
+
+
+def default_backend(env: dict[str, str]) -> str:
+    """The JAX platform (``cpu``, ``gpu``, ``tpu``) a job started with ``env`` trains on, asked
+    of a short-lived process so that the launcher itself holds no accelerator."""
+    result = subprocess.run([sys.executable, "-c", "import jax; print(jax.default_backend())"],
+                            cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    if result.returncode != 0:
+        raise RuntimeError(f"could not start JAX to find the jobs' platform: "
+                           f"{result.stderr.strip()[-2000:]}")
+    return result.stdout.strip().splitlines()[-1]
 
 
 def _now() -> str:

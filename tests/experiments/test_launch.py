@@ -341,6 +341,74 @@ def test_sbatch_script_stops_and_requeues_itself_on_usr1_and_the_requeue_resumes
     assert launch.checkpoint_step(job.job_dir) == ONE
 
 
+# --- seeds in one process -----------------------------------------------------------------------
+
+
+PAIRS = """
+description = "launcher test: two models x three seeds, two seeds to a process"
+steps = 400
+seeds = 3
+seeds_per_process = 2
+
+[[groups]]
+tasks = ["bbs_basic"]
+models = ["vsg", "dreamerv2"]
+"""
+
+
+def test_seeds_of_one_config_share_a_process_spread_over_host_devices(tmp_path):
+    (tmp_path / "pairs.toml").write_text(PAIRS)
+    experiment = load_experiment("pairs", "debug", paper_dir=tmp_path)
+    assert experiment.seeds_per_process == 2
+    jobs = launch.make_jobs(experiment, tmp_path)
+    processes = launch.group_processes(jobs, 2, True, lambda job: None)
+    assert [[job.name for job in p.jobs] for p in processes] == [
+        ["bbs_basic/vsg/s0", "bbs_basic/vsg/s1"], ["bbs_basic/vsg/s2"],
+        ["bbs_basic/dreamerv2/s0", "bbs_basic/dreamerv2/s1"], ["bbs_basic/dreamerv2/s2"]]
+    pair, single = processes[0], processes[1]
+    command = pair.command()
+    assert command[command.index("--seeds") + 1] == "0,1"
+    assert command[command.index("--logdir") + 1] == str(tmp_path / "pairs/bbs_basic/vsg/s{seed}")
+    assert command[-2:] == ["train.steps=400", "train.devices=2"]
+    flags = pair.env({"XLA_FLAGS": "--xla_dump_to=x"})["XLA_FLAGS"]
+    assert flags == "--xla_dump_to=x --xla_force_host_platform_device_count=2"
+    assert single.command() == jobs[2].command() and single.env({}) == {}
+    unspread = launch.group_processes(jobs, 2, False, lambda job: None)[0]
+    assert "train.devices=2" not in unspread.command() and unspread.env({}) == {}
+    # seeds resume in lockstep: a seed with a checkpoint never joins one without
+    resumed = launch.group_processes(jobs[:3], 3, True,
+                                     lambda job: 4000 if job.run.seed == 1 else None)
+    assert [[job.run.seed for job in p.jobs] for p in resumed] == [[0, 2], [1]]
+
+
+def test_a_bad_seeds_per_process_is_an_error_naming_it(tmp_path, capsys):
+    (tmp_path / "pairs.toml").write_text(PAIRS.replace("= 2", "= 0"))
+    assert launch.main(["pairs", "--definitions", str(tmp_path), "--root", str(tmp_path)]) == 2
+    assert "seeds_per_process must be a positive integer, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        launch.main(launch_args("one", tmp_path, tmp_path, "--seeds-per-process", "0"))
+    assert "--seeds-per-process must be a positive integer, got 0" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_local_launch_trains_two_seeds_in_one_process(definitions, tmp_path, child_env):
+    """``--seeds 2 --seeds-per-process 2``: one process trains both runs to the end; the second
+    run's launch.log points at the first's, which holds the output."""
+    args = launch_args("one", definitions, tmp_path, "--seeds", "2", "--steps", "200",
+                       "--seeds-per-process", "2")
+    result = subprocess.run([sys.executable, "-m", "experiments.launch", *args], cwd=ROOT,
+                            env=child_env, capture_output=True, text=True, timeout=TIMEOUT)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    assert "started 0 bbs_basic/vsg/s{0,1}" in result.stdout
+    first, second = (tmp_path / "one" / "bbs_basic" / "vsg" / f"s{seed}" for seed in (0, 1))
+    assert launch.checkpoint_step(first) == launch.checkpoint_step(second) == 200
+    log = (first / "launch.log").read_text()
+    assert "--seeds 0,1" in log and "train.devices=2" in log
+    assert "2 seed(s) in one program; mesh seed=2 x data=1" in log  # one seed per device
+    assert (second / "launch.log").read_text().startswith(
+        f"=== {log[4:23]} launch (local; output in {first / 'launch.log'}): ")
+
+
 # --- bad input, config differences, --status ---------------------------------------------------
 
 
