@@ -14,7 +14,13 @@ from experiments.launch.jobs import Job
 from experiments.spec import Run
 from vsgjax.config import config_changes, to_dict
 from vsgjax.data import checkpoint
-from vsgjax.loop.rundir import CHECKPOINTS_DIR, CONFIG_FILE, METRICS_FILE, SCORES_FILE
+from vsgjax.loop.rundir import (
+    CHECKPOINTS_DIR,
+    CONFIG_FILE,
+    METRICS_FILE,
+    SCORES_FILE,
+    RunDir,
+)
 
 
 @dataclass
@@ -24,6 +30,8 @@ class Status:
     * ``done``: finished (skipped by a launch);
     * ``partial``: a training run with a checkpoint short of its steps (a launch resumes it);
     * ``new``: nothing yet (a launch starts it);
+    * ``results only``: evaluations short of its steps without a checkpoint or episodes to
+      resume from (never launched: training would start over and replace them);
     * ``config differs``: a log directory of another config (never launched or touched);
     * ``blocked``: an evaluate / rollouts job whose source run has not finished training.
     """
@@ -109,6 +117,14 @@ def train_status(run: Run, logdir: Path) -> Status:
         return Status("done", ckpt, run.steps, score)
     if ckpt is not None:
         return Status("partial", step, run.steps, score, f"resumes from env step {ckpt}")
+    kept = RunDir(logdir)
+    evaluated = kept.evaluated_to()
+    if evaluated is not None and not kept.episode_paths():
+        if evaluated >= run.steps:
+            return Status("done", evaluated, run.steps, score, "its checkpoints are not here")
+        return Status("results only", evaluated, run.steps, score,
+                      "no checkpoint or episodes to resume from; vsgjax.train --restart "
+                      "trains it again")
     return Status("new", step, run.steps, score)
 
 
@@ -164,7 +180,7 @@ def format_table(jobs: Sequence[Job], statuses: dict[int, Status], states: dict[
                      status.score, _eta(etas.get(job.index)), status.note])
     counts: dict[str, int] = {}
     for row in rows:
-        key = row[2].split(" ")[0] if not row[2].startswith("config") else row[2]
+        key = row[2] if row[2].startswith(("config", "results")) else row[2].split(" ")[0]
         counts[key] = counts.get(key, 0) + 1
     summary = ", ".join(f"{count} {state}" for state, count in counts.items())
     if limit is not None and len(rows) > limit:

@@ -443,6 +443,29 @@ def test_status_prints_the_table_and_launches_nothing(definitions, tmp_path, cap
     assert out.count("blocked") == 3 and str(tmp_path / "two" / "bbs_basic" / "vsg" / "s0") in out
 
 
+def test_kept_results_without_checkpoints_are_done_or_left_alone(definitions, tmp_path, capsys):
+    """Results kept without their checkpoints and episodes (as committed under
+    experiments/results/): a run evaluated to its steps is done, one short of them is never
+    launched (training would start it over)."""
+    experiment = load_experiment("two", "debug", paper_dir=definitions)
+    short, long = launch.make_jobs(experiment, tmp_path)
+    for job, last in ((short, SHORT), (long, LONG // 2)):
+        job.job_dir.mkdir(parents=True)
+        record = {"task": "bbs_basic", "method": "VSG", "seed": "0", "xs": [40.0, float(last)],
+                  "ys": [1.5, 2.5]}
+        (job.job_dir / "scores.jsonl").write_text(json.dumps(record) + "\n")
+    assert (launch.job_status(short).state, launch.job_status(short).note) == (
+        "done", "its checkpoints are not here")
+    assert launch.job_status(long).state == "results only"
+    before = snapshot(tmp_path)
+    assert launch.main(launch_args("two", definitions, tmp_path, "--backend", "local")) == 1
+    out = capsys.readouterr().out
+    assert "skipped: finished before this launch" in out
+    assert "no checkpoint or episodes to resume from; vsgjax.train --restart" in out
+    assert out.splitlines()[-1] == "two: 2 jobs: 1 done, 1 results only"
+    assert snapshot(tmp_path) == before  # nothing launched, nothing written
+
+
 def test_a_run_dir_with_another_config_is_reported_and_left_alone(definitions, tmp_path,
                                                                   capsys):
     experiment = load_experiment("one", "debug", paper_dir=definitions)

@@ -152,6 +152,20 @@ def test_episodes_of_another_config_without_a_checkpoint_are_refused(old_run, ca
     assert snapshot(old_run) == before
 
 
+def test_evaluations_without_a_checkpoint_or_episodes_are_refused(old_run, capsys):
+    """Committed results (scores and logs, their checkpoints and episodes not kept) are never
+    trained over: that would start the run over and replace them."""
+    shutil.rmtree(old_run / "checkpoints")
+    shutil.rmtree(old_run / "episodes")
+    before = snapshot(old_run)
+    code, _, err = run_train(capsys, old_run)
+    assert code == 2
+    line = one_line_error(err)
+    assert (f"{old_run} holds the evaluations of a run to env step 320 but no checkpoint or "
+            "episodes to resume it from; rerun with --restart") in line
+    assert snapshot(old_run) == before
+
+
 LOCKER = ("import sys, time; from pathlib import Path; "
           "from vsgjax.loop.rundir_guard import RunLock; "
           "lock = RunLock(Path(sys.argv[1])); print('locked', flush=True); time.sleep(120)")

@@ -30,6 +30,7 @@ from vsgjax.data import checkpoint
 from vsgjax.data.replay import EpisodeStore
 from vsgjax.loop.logger import Logger, truncate_metrics
 from vsgjax.loop.rundir_guard import (
+    RunDirError,
     RunLock,
     move_aside,
     remove_interrupted_writes,
@@ -105,6 +106,16 @@ class RunDir:
         path = self.path(SCORES_FILE)
         return json.loads(path.read_text()) if path.exists() else None
 
+    def evaluated_to(self) -> int | None:
+        """The env step of the newest evaluation in ``scores.jsonl`` (None: none, or the file
+        cannot be read)."""
+        try:
+            scores = self.read_scores()
+        except (OSError, ValueError):
+            return None
+        xs = scores.get("xs") if isinstance(scores, dict) else None
+        return int(xs[-1]) if xs else None
+
 
 class RunWriter(RunDir):
     """Writing one seed's run directory during training (either loop): config, logs, scores,
@@ -122,6 +133,7 @@ class RunWriter(RunDir):
         try:
             self.moved_to = move_aside(self.logdir) if restart else None
             self._check_config()
+            self._check_not_results_alone()
             set_aside_corrupt(self.logdir, self.ckpt_dir)
             remove_interrupted_writes(self.logdir, self.ckpt_dir, self.episodes_dir)
         except BaseException:
@@ -144,6 +156,16 @@ class RunWriter(RunDir):
         if changed:
             raise ConfigError(f"{self.logdir} holds a run with a different config ("
                               + "; ".join(changed) + f"); {restart_hint(self.logdir)}")
+
+    def _check_not_results_alone(self) -> None:
+        """Evaluations without a checkpoint or an episode are a run kept without its training
+        state (committed results, a copied directory): training would start over and replace
+        them, so it is refused."""
+        evaluated = self.evaluated_to()
+        if evaluated is not None and not (self.checkpoints() or self.episode_paths()):
+            raise RunDirError(f"{self.logdir} holds the evaluations of a run to env step "
+                              f"{evaluated} but no checkpoint or episodes to resume it from; "
+                              f"{restart_hint(self.logdir)}")
 
     def load(self, restored: checkpoint.Checkpoint) -> None:
         self.scores = restored.meta["scores"]
