@@ -15,7 +15,7 @@ with the allocator the launcher uses (:mod:`vsgjax.loop.allocator`):
 
 Each process warms up (prefill, compilation, its first training call), waits at a barrier, then
 times ``repeats`` calls; medians. Evaluation, checkpoints and videos are off. Minutes per run:
-the 48 training calls of a 100k-env-step run (after the 4,000-step prefill) at the measured rate,
+the training calls of a 100k-env-step run (after the prefill) at the measured rate,
 divided by the seeds that share them (the issue's accounting: S seeds in one process are S runs),
 without evaluation, prefill and compilation (the committed runs' own clocks have the totals).
 
@@ -127,7 +127,9 @@ def row(label: str, results: list[dict]) -> dict:
     seed_calls_per_s = sum(r["seeds"] / r["call_s"] for r in results)
     per_process_s = statistics.median(r["call_s"] for r in results)
     return {"label": label, "call_s": per_process_s, "seeds": first["seeds"],
-            "processes": len(results),
+            "processes": len(results), "calls": calls,
+            "env_steps_per_call": first["env_steps_per_call"],
+            "updates_per_call": first["updates_per_call"],
             "env_steps_per_s": seed_calls_per_s * first["env_steps_per_call"],
             "updates_per_s": seed_calls_per_s * first["updates_per_call"],
             "run_wall_min": calls * per_process_s / 60,
@@ -136,16 +138,17 @@ def row(label: str, results: list[dict]) -> dict:
 
 
 def markdown(rows: list[dict], repeats: int) -> str:
-    base = rows[0]["updates_per_s"]
+    base, first = rows[0]["updates_per_s"], rows[0]
     lines = ["## MJX device loop at `cpu`: one process, two, or seeds spread on host devices",
              "",
-             f"VSG at the `cpu` size on {TASK}: one training call (2 envs x 500 agent steps, "
-             "2,000 env steps and 250 updates of 16 x 32 per seed), median of "
-             f"{repeats} calls after warm-up, every process on mimalloc as the launcher starts "
-             "it. Rates are totals over all seeds of all processes. *Run wall min*: 48 calls "
-             "(a 100k-env-step run after prefill) at the process's call time; *min per run*: "
-             "the same divided by the seeds that share the machine's time (S seeds in one "
-             "process count as S runs). Evaluation, prefill and compilation are not included.",
+             f"VSG at the `cpu` size on {TASK}: one training call ("
+             f"{first['env_steps_per_call']:,} env steps and {first['updates_per_call']} "
+             f"updates per seed), median of {repeats} calls after warm-up, every process on "
+             "mimalloc as the launcher starts it. Rates are totals over all seeds of all "
+             f"processes. *Run wall min*: {first['calls']} calls (a {RUN_STEPS:,}-env-step run "
+             "after prefill) at the process's call time; *min per run*: the same divided by the "
+             "seeds that share the machine's time (S seeds in one process count as S runs). "
+             "Evaluation, prefill and compilation are not included.",
              "",
              "| way | processes x seeds | call s | env steps/s | seed-updates/s | vs one seed "
              "| run wall min | min per run | warm-up s |",
