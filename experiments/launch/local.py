@@ -114,7 +114,7 @@ class LocalRunner:
         interval = self.interval if self.interval is not None else (5.0 if tty else 60.0)
         queue = self._queue()
         running: dict[int, tuple[Process, subprocess.Popen, object]] = {}
-        progress: dict[int, _Progress] = {}
+        progress: dict[int, _Progress] = {}  # of every job of a running process
         env = job_env(self.parallel)
         previous = {sig: signal.signal(sig, self._handle) for sig in (signal.SIGINT,
                                                                       signal.SIGTERM)}
@@ -149,6 +149,7 @@ class LocalRunner:
                     log.close()
                     del running[index]
                     for job in process.jobs:
+                        del progress[job.index]
                         state, note = finished_after_exit(job, code)
                         self.states[job.index], self.notes[job.index] = state, note
                         if not tty:
@@ -158,9 +159,7 @@ class LocalRunner:
                 finished = not running and (self._stop is not None or not queue)
                 if finished or now - last_table >= interval:
                     last_table = now
-                    members = {job.index for process, _, _ in running.values()
-                               for job in process.jobs}
-                    table = self._table({i: progress[i] for i in members}, now, tty)
+                    table = self._table(progress, now, tty)
                     if tty and shown_lines:
                         self.out.write(f"\x1b[{shown_lines}F\x1b[J")
                     self._print(table)

@@ -117,9 +117,8 @@ def train_status(run: Run, logdir: Path) -> Status:
         return Status("done", ckpt, run.steps, score)
     if ckpt is not None:
         return Status("partial", step, run.steps, score, f"resumes from env step {ckpt}")
-    kept = RunDir(logdir)
-    evaluated = kept.evaluated_to()
-    if evaluated is not None and not kept.episode_paths():
+    evaluated = RunDir(logdir).results_alone_to()
+    if evaluated is not None:
         if evaluated >= run.steps:
             return Status("done", evaluated, run.steps, score, "its checkpoints are not here")
         return Status("results only", evaluated, run.steps, score,

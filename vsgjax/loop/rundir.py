@@ -106,9 +106,12 @@ class RunDir:
         path = self.path(SCORES_FILE)
         return json.loads(path.read_text()) if path.exists() else None
 
-    def evaluated_to(self) -> int | None:
-        """The env step of the newest evaluation in ``scores.jsonl`` (None: none, or the file
-        cannot be read)."""
+    def results_alone_to(self) -> int | None:
+        """The env step of the newest evaluation of a run kept without its training state (its
+        evaluations in ``scores.jsonl``, no checkpoint or episode: committed results, a copied
+        directory); None when there is a checkpoint or an episode, or no readable evaluation."""
+        if self.checkpoints() or self.episode_paths():
+            return None
         try:
             scores = self.read_scores()
         except (OSError, ValueError):
@@ -158,11 +161,10 @@ class RunWriter(RunDir):
                               + "; ".join(changed) + f"); {restart_hint(self.logdir)}")
 
     def _check_not_results_alone(self) -> None:
-        """Evaluations without a checkpoint or an episode are a run kept without its training
-        state (committed results, a copied directory): training would start over and replace
-        them, so it is refused."""
-        evaluated = self.evaluated_to()
-        if evaluated is not None and not (self.checkpoints() or self.episode_paths()):
+        """Training over a run kept without its training state would start it over and replace
+        its results, so it is refused."""
+        evaluated = self.results_alone_to()
+        if evaluated is not None:
             raise RunDirError(f"{self.logdir} holds the evaluations of a run to env step "
                               f"{evaluated} but no checkpoint or episodes to resume it from; "
                               f"{restart_hint(self.logdir)}")
