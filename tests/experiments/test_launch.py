@@ -87,6 +87,7 @@ def definitions(tmp_path_factory) -> Path:
 def child_env(tmp_path_factory) -> dict:
     cache = tmp_path_factory.mktemp("xla_cache")
     return dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=str(cache),
+                JAX_ENABLE_COMPILATION_CACHE="true",
                 JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", MUJOCO_GL="osmesa",
                 PYOPENGL_PLATFORM="osmesa")
 

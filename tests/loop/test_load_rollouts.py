@@ -23,6 +23,7 @@ from vsgjax.loop import videos
 from vsgjax.loop.evaluate import checkpoint_tree
 from vsgjax.model import api
 from vsgjax.model.agent import Agent
+from vsgjax.model.gate_statistics import gate_statistics
 
 ROOT = Path(__file__).resolve().parents[2]
 NOTEBOOK = ROOT / "experiments" / "notebooks" / "imagine.ipynb"
@@ -156,6 +157,20 @@ def test_the_notebook_call_imagines_under_the_actor_deterministically(run, start
         vsgjax.imagine(params, start, H=4, config=make_config("bbs_basic", "vsg", "small"))
     with pytest.raises(TypeError, match="config"):
         vsgjax.imagine(params.wm, start, H=4, action_dim=2)
+
+
+@pytest.mark.slow
+def test_loaded_run_statistics_equal_those_of_its_params(run):
+    """``gate_statistics`` of a loaded run equals that of its world model's params."""
+    episodes = run.episodes(limit=2)
+    length = min(32, *(len(ep["is_first"]) for ep in episodes))
+    batch = {k: np.stack([ep[k][:length] for ep in episodes]) for k in episodes[0]}
+    key = jax.random.PRNGKey(1)
+    loaded = gate_statistics(run.params, batch, key)
+    direct = gate_statistics(run.params.wm, batch, key, config=run.config)
+    for a, b in zip(jax.tree.leaves(loaded), jax.tree.leaves(direct), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert loaded.summary() == direct.summary()
 
 
 @pytest.mark.slow
