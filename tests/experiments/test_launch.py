@@ -22,6 +22,7 @@ import pytest
 
 from experiments import launch
 from experiments.spec import EVALUATION_FILE, load_experiment
+from tests.support.subprocess_env import subprocess_env
 from vsgjax import evaluate
 from vsgjax.config import make_config, to_dict
 
@@ -86,10 +87,7 @@ def definitions(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def child_env(tmp_path_factory) -> dict:
     cache = tmp_path_factory.mktemp("xla_cache")
-    return dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=str(cache),
-                JAX_ENABLE_COMPILATION_CACHE="true",
-                JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", MUJOCO_GL="osmesa",
-                PYOPENGL_PLATFORM="osmesa")
+    return subprocess_env(cache)
 
 
 def launch_args(name: str, definitions: Path, root: Path, *extra: str) -> list[str]:

@@ -36,7 +36,6 @@ import functools
 import hashlib
 import itertools
 import json
-import os
 import re
 import subprocess
 import sys
@@ -47,6 +46,7 @@ import jax
 import numpy as np
 import pytest
 
+from tests.support.subprocess_env import subprocess_env
 from vsgjax.config import make_config
 from vsgjax.data import checkpoint
 from vsgjax.data.replay.store import read_episode
@@ -262,13 +262,6 @@ cpu_line()
 '''
 
 
-def child_env(cache: Path) -> dict:
-    return dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=str(cache),
-                JAX_ENABLE_COMPILATION_CACHE="true",
-                JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", MUJOCO_GL="osmesa",
-                PYOPENGL_PLATFORM="osmesa", PYTHONWARNINGS="default")
-
-
 def train_argv(loop: str, logdir: Path) -> list[str]:
     task, overrides = LOOPS[loop]
     return ["--task", task, "--model", "vsg", "--size", "debug", "--seed", "0", "--logdir",
@@ -397,7 +390,7 @@ def run_battery(loop: str, root: Path, env: dict) -> Battery:
 def batteries(tmp_path_factory) -> dict[str, Battery]:
     """Both loops' batteries, run side by side (one driver process of each at a time), with
     one compilation cache."""
-    env = child_env(tmp_path_factory.mktemp("xla_cache"))
+    env = subprocess_env(tmp_path_factory.mktemp("xla_cache"))
     with concurrent.futures.ThreadPoolExecutor(len(LOOPS)) as pool:
         futures = {loop: pool.submit(run_battery, loop, tmp_path_factory.mktemp(loop), env)
                    for loop in LOOPS}

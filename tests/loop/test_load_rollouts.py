@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,6 +16,7 @@ import pytest
 
 import vsgjax
 from experiments import rollouts
+from tests.support.subprocess_env import subprocess_env
 from vsgjax.config import make_config, to_dict
 from vsgjax.data import checkpoint
 from vsgjax.loop import videos
@@ -35,10 +35,7 @@ TRAIN = ["--task", "bbs_basic", "--model", "vsg", "--size", "debug", "--seed", "
 def logdir(tmp_path_factory) -> Path:
     """A finished tiny VSG run: 600 env steps, a checkpoint at 600, two stored episodes."""
     root = tmp_path_factory.mktemp("load_rollouts")
-    env = dict(os.environ, JAX_PLATFORMS="cpu",
-               JAX_COMPILATION_CACHE_DIR=str(root / "xla_cache"),
-               JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", MUJOCO_GL="osmesa",
-               PYOPENGL_PLATFORM="osmesa")
+    env = subprocess_env(root / "xla_cache")
     run_dir = root / "run"
     result = subprocess.run([sys.executable, "-m", "vsgjax.train", *TRAIN, "--logdir",
                              str(run_dir)], cwd=ROOT, env=env, capture_output=True, text=True,

@@ -9,7 +9,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import os
 import re
 import signal
 import subprocess
@@ -22,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from tests.support.subprocess_env import subprocess_env
 from vsgjax import train
 from vsgjax.config import make_config
 from vsgjax.data import checkpoint
@@ -43,10 +43,7 @@ RUN_TIMEOUT = 900
 @pytest.fixture(scope="module")
 def child_env(tmp_path_factory) -> dict:
     cache = tmp_path_factory.mktemp("xla_cache")
-    return dict(os.environ, JAX_PLATFORMS="cpu", JAX_COMPILATION_CACHE_DIR=str(cache),
-                JAX_ENABLE_COMPILATION_CACHE="true",
-                JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0", MUJOCO_GL="osmesa",
-                PYOPENGL_PLATFORM="osmesa", PYTHONWARNINGS="default")
+    return subprocess_env(cache, PYTHONWARNINGS="default")
 
 
 def train_command(logdir: Path, task: str, *overrides: str) -> list[str]:
