@@ -1,14 +1,26 @@
 """Shared test setup: CPU only, headless rendering, deterministic XLA on the CPU."""
 
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("MUJOCO_GL", "osmesa")
 os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
-# Each test process compiles its own programs; the e2e subprocesses that want a persistent
-# compilation cache set it themselves.
-os.environ.setdefault("JAX_ENABLE_COMPILATION_CACHE", "false")
+# One persistent XLA compilation cache per test session, in a fresh directory: the test
+# processes (xdist workers) and every training subprocess they start inherit it, so a program
+# that one test compiled is loaded, not compiled again, by the next test that builds the same
+# one (in any file or process). Never the user's own cache (~/.cache/vsgjax/xla).
+SESSION_CACHE = "VSGJAX_TEST_XLA_CACHE"
+if SESSION_CACHE not in os.environ:  # the first process of the session (the xdist controller)
+    os.environ[SESSION_CACHE] = tempfile.mkdtemp(prefix="vsgjax-tests-xla-")
+    _OWNS_CACHE = True
+else:
+    _OWNS_CACHE = False
+os.environ["JAX_COMPILATION_CACHE_DIR"] = os.environ[SESSION_CACHE]
+os.environ["JAX_ENABLE_COMPILATION_CACHE"] = "true"
+os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
 
 import gc  # noqa: E402
 
@@ -69,3 +81,8 @@ def _free_compiled_programs():
     jax.clear_caches()
     gc.collect()
 
+
+
+def pytest_unconfigure(config):
+    if _OWNS_CACHE:
+        shutil.rmtree(os.environ[SESSION_CACHE], ignore_errors=True)

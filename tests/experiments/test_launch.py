@@ -85,9 +85,8 @@ def definitions(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def child_env(tmp_path_factory) -> dict:
-    cache = tmp_path_factory.mktemp("xla_cache")
-    return subprocess_env(cache)
+def child_env() -> dict:
+    return subprocess_env()
 
 
 def launch_args(name: str, definitions: Path, root: Path, *extra: str) -> list[str]:

@@ -388,9 +388,8 @@ def run_battery(loop: str, root: Path, env: dict) -> Battery:
 
 @pytest.fixture(scope="module")
 def batteries(tmp_path_factory) -> dict[str, Battery]:
-    """Both loops' batteries, run side by side (one driver process of each at a time), with
-    one compilation cache."""
-    env = subprocess_env(tmp_path_factory.mktemp("xla_cache"))
+    """Both loops' batteries, run side by side (one driver process of each at a time)."""
+    env = subprocess_env()
     with concurrent.futures.ThreadPoolExecutor(len(LOOPS)) as pool:
         futures = {loop: pool.submit(run_battery, loop, tmp_path_factory.mktemp(loop), env)
                    for loop in LOOPS}

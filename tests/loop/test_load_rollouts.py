@@ -35,7 +35,7 @@ TRAIN = ["--task", "bbs_basic", "--model", "vsg", "--size", "debug", "--seed", "
 def logdir(tmp_path_factory) -> Path:
     """A finished tiny VSG run: 600 env steps, a checkpoint at 600, two stored episodes."""
     root = tmp_path_factory.mktemp("load_rollouts")
-    env = subprocess_env(root / "xla_cache")
+    env = subprocess_env()
     run_dir = root / "run"
     result = subprocess.run([sys.executable, "-m", "vsgjax.train", *TRAIN, "--logdir",
                              str(run_dir)], cwd=ROOT, env=env, capture_output=True, text=True,

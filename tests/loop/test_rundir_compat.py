@@ -50,8 +50,7 @@ def test_an_old_run_directory_loads_and_evaluates(copied):
 
 
 @pytest.mark.parametrize("copied", list(RUNS), indirect=True)
-def test_an_old_run_directory_resumes(copied, monkeypatch, capsys):
-    monkeypatch.setattr(train, "enable_compilation_cache", lambda: None)
+def test_an_old_run_directory_resumes(copied, capsys):
     before = json.loads((copied / "scores.jsonl").read_text())["xs"][-1]
     steps = int(before) + 80
     flags = [a for a in RUNS[copied.name] if "=" not in a]

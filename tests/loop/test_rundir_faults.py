@@ -44,11 +44,6 @@ def old_run(tmp_path) -> Path:
     return logdir
 
 
-@pytest.fixture(autouse=True)
-def no_compilation_cache(monkeypatch):
-    monkeypatch.setattr(train, "enable_compilation_cache", lambda: None)
-
-
 def config(*overrides: str):
     return make_config("bbs_basic", "vsg", "debug", [*OVERRIDES, *overrides])
 

@@ -41,9 +41,8 @@ RUN_TIMEOUT = 900
 
 
 @pytest.fixture(scope="module")
-def child_env(tmp_path_factory) -> dict:
-    cache = tmp_path_factory.mktemp("xla_cache")
-    return subprocess_env(cache, PYTHONWARNINGS="default")
+def child_env() -> dict:
+    return subprocess_env(PYTHONWARNINGS="default")
 
 
 def train_command(logdir: Path, task: str, *overrides: str) -> list[str]:
@@ -150,7 +149,6 @@ def test_non_finite_loss_stops_with_message_and_keeps_last_good_checkpoint(
         return state._replace(step=state.step + 1), {"wm/loss": loss}
 
     monkeypatch.setattr(Agent, "train_step", fake_train_step)
-    monkeypatch.setattr(train, "enable_compilation_cache", lambda: None)
     code = train.main(["--size", "debug", "--logdir", str(tmp_path), "--no-progress",
                        "env.time_limit=200", "train.ckpt_every=1", "train.eval_every=100000"])
     err = capsys.readouterr().err
