@@ -365,7 +365,7 @@ def test_versus_table_and_figure_against_dreamerv3(tmp_path):
     assert {run.size for run in experiment.runs} == {"cpu"}
     assert experiment.runs[0].steps == 100_000
     written = [run for run in experiment.runs
-               if run.task == "mjx_cartpole_swingup" and run.model == "vsg"]
+               if run.task == "mjx_cartpole_swingup" and run.method == "VSG"]
     for run in written:  # seed 0 scores 400 at 100k, seed 1 300: mean 350 > DreamerV3's 321.6
         logdir = run.logdir(tmp_path)
         logdir.mkdir(parents=True)
@@ -388,5 +388,6 @@ def test_versus_table_and_figure_against_dreamerv3(tmp_path):
     assert "350.0 ± 50.0 (n=2)" in ours and "70.0 ± 10.0 (n=2)" in ours  # 100k and 20k
     assert "30.0, 30.0 |" in ours  # wall minutes per run at the last evaluation
     assert "missing" in rows[("| mjx_walker_walk", "VSG")]
+    assert "missing" in rows[("| mjx_cartpole_swingup", "VSG-stoch32")]  # a variant's own row
     assert "VSG: 1 of 5 tasks; DreamerV2: 0 of 5 tasks" in versus.markdown
     assert len(built.missing) == len(experiment.runs) - 2
