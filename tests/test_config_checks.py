@@ -78,6 +78,19 @@ def test_a_sequence_longer_than_the_tasks_episodes_is_an_error():
                     ["env.time_limit=40", "train.length=22"])
 
 
+def test_more_imagination_starts_than_an_update_has_is_an_error():
+    with pytest.raises(ConfigError) as error:
+        make_config("mjx_cheetah_run", "vsg", "cpu", ["ac.starts=513"])
+    assert str(error.value) == (
+        "config key 'ac.starts' got 513, more than the 512 posterior states of an update "
+        "(train.batch=16 x train.length=32); valid: 0 (every one) to 512")
+    make_config("mjx_cheetah_run", "vsg", "cpu", ["ac.starts=512"])
+    # the release drops the last step of each sequence when there is a discount head
+    with pytest.raises(ConfigError, match=r"the 36 posterior states .* minus its last step"):
+        make_config("bbs_basic", "vsg", "debug", ["ac.starts=37"])
+    make_config("bbs_basic", "vsg", "debug", ["ac.starts=36"])
+
+
 def test_the_bbs_episode_bound_is_the_envs_own_length():
     config = make_config("bbs_basic", "vsg", "debug", ["env.time_limit=200"])
     env = bbs.make("bbs_basic", time_limit=200, action_repeat=4, obs_size=16)

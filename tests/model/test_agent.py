@@ -19,9 +19,9 @@ BATCH, LENGTH, UPDATES, SLOW_EVERY = 2, 3, 3, 2
 slow = pytest.mark.slow
 
 
-def make_agent(model: str, discrete: bool, alignment: str = "release") -> Agent:
+def make_agent(model: str, discrete: bool, alignment: str = "release", *overrides) -> Agent:
     config = make_config("bbs_basic", model, "debug", [f"ac.slow_critic_every={SLOW_EVERY}",
-                                                        f"ac.alignment={alignment}"])
+                                                        f"ac.alignment={alignment}", *overrides])
     return Agent(config, (64, 64, 3), 3 if discrete else 2, discrete)
 
 
@@ -117,6 +117,19 @@ def test_next_state_alignment_copies_the_slow_critic_after_the_update():
     assert _leaves_equal(params[2]["slow_critic"], params[1]["critic"])
     assert _leaves_equal(params[3]["slow_critic"], params[3]["critic"])
     assert all(np.isfinite(value) for value in metrics[0].values())
+
+
+def test_imagining_from_some_of_the_starts_trains_every_network():
+    """ac.starts=3 of the batch's 4 release starts: a different update, just as complete."""
+    agent = make_agent("vsg", False, "release", "ac.starts=3")
+    _, batch, states, metrics = _updates("vsg", False)
+    state, part = agent.train_step(states[0], batch, jax.random.PRNGKey(100))
+    part = jax.device_get(part)
+    assert all(np.isfinite(value) for value in part.values())
+    assert part["wm/loss"] == metrics[0]["wm/loss"]  # the world model's update is unchanged
+    assert part["actor/loss"] != metrics[0]["actor/loss"]
+    for name in ("wm", "actor", "critic"):
+        assert not _leaves_equal(states[0].params[name], state.params[name]), name
 
 
 # --- policy_step --------------------------------------------------------------------------------

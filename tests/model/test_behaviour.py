@@ -210,6 +210,21 @@ def test_start_states_drop_the_last_step_only_for_the_release_with_a_discount_he
         np.testing.assert_array_equal(cont, continues)
 
 
+def test_drawn_starts_are_distinct_rows_with_their_flags_and_follow_the_key():
+    starts = {"z": jnp.arange(20.0).reshape(10, 2)}
+    start_continue = jnp.arange(10.0)
+    drawn, cont = bhv.draw_starts(starts, start_continue, 4, jax.random.PRNGKey(0))
+    rows = np.asarray(drawn["z"][:, 0] // 2).astype(int)
+    assert drawn["z"].shape == (4, 2) and len(set(rows.tolist())) == 4
+    np.testing.assert_array_equal(cont, rows)
+    np.testing.assert_array_equal(drawn["z"][:, 1], drawn["z"][:, 0] + 1)
+    again, _ = bhv.draw_starts(starts, start_continue, 4, jax.random.PRNGKey(0))
+    np.testing.assert_array_equal(again["z"], drawn["z"])
+    others = [bhv.draw_starts(starts, start_continue, 4, jax.random.PRNGKey(k))[0]["z"]
+              for k in range(1, 4)]
+    assert any(not np.array_equal(other, drawn["z"]) for other in others)
+
+
 def test_release_horizon_must_leave_an_imagined_step():
     with pytest.raises(ValueError, match="ac.horizon 1 .*horizon >= 2"):
         make_behaviour(alignment="release", horizon=1)

@@ -60,7 +60,7 @@ RANGES = {
     "wm.gate_alpha": AT_LEAST_0, "wm.gate_kappa": OPEN_UNIT, "wm.gate_free": AT_LEAST_0,
     "wm.reward_scale": AT_LEAST_0, "wm.discount_scale": AT_LEAST_0,
     "wm.lr": POSITIVE, "wm.eps": POSITIVE, "wm.clip": POSITIVE, "wm.weight_decay": AT_LEAST_0,
-    "ac.horizon": AT_LEAST_1, "ac.gamma": UNIT, "ac.lam": UNIT,
+    "ac.horizon": AT_LEAST_1, "ac.starts": AT_LEAST_0, "ac.gamma": UNIT, "ac.lam": UNIT,
     "ac.actor_layers": AT_LEAST_0, "ac.critic_layers": AT_LEAST_0,
     "ac.actor_lr": POSITIVE, "ac.critic_lr": POSITIVE, "ac.actor_grad_mix": UNIT,
     "ac.actor_min_std": AT_LEAST_0, "ac.entropy": AT_LEAST_0, "ac.slow_critic_every": AT_LEAST_1,
@@ -86,6 +86,7 @@ def check_config(config: Config) -> None:
             raise ConfigError(f"config key {key!r} got {value!r}; valid: {RANGES[key]}")
     _check_horizon(config)
     _check_sequences(config)
+    _check_starts(config)
     _check_atari_options(config)
 
 
@@ -132,6 +133,19 @@ def _check_sequences(config: Config) -> None:
     if train.replay_capacity < train.length:
         raise ConfigError(f"train.replay_capacity={train.replay_capacity} holds no sequence "
                           f"of train.length={train.length} steps; valid: >= {train.length}")
+
+
+def _check_starts(config: Config) -> None:
+    """``ac.starts`` draws from the posteriors :func:`vsgjax.model.behaviour.start_states` gives."""
+    train = config.train
+    drop_last = config.wm.discount_head and config.ac.alignment == "release"
+    available = train.batch * (train.length - drop_last)
+    if config.ac.starts > available:
+        dropped = " minus its last step (a discount head)" if drop_last else ""
+        raise ConfigError(
+            f"config key 'ac.starts' got {config.ac.starts}, more than the {available} posterior "
+            f"states of an update (train.batch={train.batch} x train.length={train.length}"
+            f"{dropped}); valid: 0 (every one) to {available}")
 
 
 def _check_atari_options(config: Config) -> None:

@@ -84,6 +84,7 @@ class BehaviourConfig:
 
     alignment: str = "release"  # "release" (the authors' ImagBehavior) or "next_state"
     horizon: int = 15  # release: H states per start, the start included; next_state: H steps
+    starts: int = 0  # imagination starts per update: 0 = every posterior (the release), K = K drawn
     gamma: float = 0.99
     lam: float = 0.95
     actor_layers: int = 4

@@ -107,10 +107,11 @@ class Agent:
         """One update of world model, then actor, then critic, with the slow-critic schedule.
 
         The world model trains on ``batch``; its posterior states (stop-gradient; see
-        :func:`vsgjax.model.behaviour.start_states` for which) start the imagination, which uses the
-        freshly updated world model. The slow critic is copied from the critic at the start of
-        the update (``ac.alignment=release``) or after it (``next_state``). Returns
-        ``(state, metrics)`` with keys ``wm/*``, ``actor/*``, ``critic/*`` and ``imag/*``.
+        :func:`vsgjax.model.behaviour.start_states` for which; ``ac.starts`` of them when it is
+        not 0) start the imagination, which uses the freshly updated world model. The slow
+        critic is copied from the critic at the start of the update (``ac.alignment=release``)
+        or after it (``next_state``). Returns ``(state, metrics)`` with keys ``wm/*``,
+        ``actor/*``, ``critic/*`` and ``imag/*``.
         """
         wm_key, ac_key = jax.random.split(key)
         params, opt, optimizers = state.params, dict(state.opt), self.optimizers
@@ -124,6 +125,10 @@ class Agent:
             slow_critic = bhv.update_slow_critic(params["critic"], slow_critic, state.step, every)
         starts, start_continue = bhv.start_states(posts, batch["is_terminal"], behaviour,
                                                   drop_last=self.config.wm.discount_head)
+        if self.config.ac.starts:
+            ac_key, draw_key = jax.random.split(ac_key)
+            starts, start_continue = bhv.draw_starts(starts, start_continue,
+                                                     self.config.ac.starts, draw_key)
         keys = jax.random.split(ac_key, start_continue.shape[0])
         grad_fn = jax.value_and_grad(bhv.actor_loss, has_aux=True)
         (_, (imagined, ac_metrics)), actor_grads = grad_fn(

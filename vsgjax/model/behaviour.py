@@ -283,6 +283,14 @@ def start_states(posts, is_terminal: jax.Array, behaviour: Behaviour, drop_last:
     return flat, start_continue
 
 
+def draw_starts(starts, start_continue: jax.Array, count: int, key: jax.Array) -> tuple:
+    """``count`` of the flattened start states and their flags, drawn uniformly without
+    replacement. Posteriors a step apart in one sequence are nearly the same state, so a part
+    of them trains the actor-critic almost as well, at that part of imagination's cost."""
+    chosen = jax.random.choice(key, start_continue.shape[0], (count,), replace=False)
+    return jax.tree.map(lambda x: x[chosen], starts), start_continue[chosen]
+
+
 # --- imagination and losses ---------------------------------------------------------------------
 
 class Imagined(NamedTuple):
