@@ -32,7 +32,7 @@ class VersusData:
     tasks: list[str]
     methods: list[str]  # ours
     bar_methods: list[str]  # the reference's
-    ours: dict[tuple[str, str], list[Curve]]  # (task, our method) -> seeds with scores
+    ours: dict[tuple[str, str], list[Curve]]  # (task, our method) with runs -> seeds with scores
     bar: dict[tuple[str, str], list[Curve]]  # (task, reference method) -> its seeds
     missing: list[Run]
     spacing: float  # our grid: the runs' evaluation interval
@@ -42,13 +42,17 @@ class VersusData:
 
 
 def versus_data(context: Context, at=(), budget_minutes: float | None = None) -> VersusData:
-    """Our seeds per task x method and the reference's seeds of the same task (every method of
-    the reference file), cut at the experiment's ``train.steps``."""
+    """Our seeds per task x method that the experiment has runs of (a group may train some of
+    its tasks only) and the reference's seeds of the same task (every method of the reference
+    file), cut at the experiment's ``train.steps``."""
     experiment = context.experiment
     ours, bar, missing = {}, {}, []
     bar_methods: list[str] = []
+    planned = {(run.task, run.method) for run in experiment.runs}
     for task in experiment.tasks:
         for method in experiment.methods:
+            if (task, method) not in planned:
+                continue
             curves, absent = context.ours(task, method)
             ours[(task, method)] = curves
             missing.extend(absent)
@@ -153,7 +157,9 @@ def versus_markdown(data: VersusData) -> str:
                 rows.append([task, f"{method} (released)"] + [
                     stat_at(seeds, a, data.bar_spacing).text(1) for a in data.at] + ["—"])
         for method in data.methods:
-            seeds = data.ours.get((task, method), [])
+            if (task, method) not in data.ours:
+                continue
+            seeds = data.ours[(task, method)]
             walls = [w for w in map(wall_minutes, seeds) if w is not None]
             wall = f"{np.mean(walls):.1f}, {max(walls):.1f}" if walls else "—"
             rows.append([task, method] + [stat_at(seeds, a, data.spacing).text(1)
@@ -161,8 +167,9 @@ def versus_markdown(data: VersusData) -> str:
     text = markdown_table(rows)
     reached = []
     for method in data.methods:
-        count = sum(1 for task in data.tasks if at_or_above(data, task, method))
-        reached.append(f"{method}: {count} of {len(data.tasks)} tasks")
+        tasks = [task for task in data.tasks if (task, method) in data.ours]
+        count = sum(1 for task in tasks if at_or_above(data, task, method))
+        reached.append(f"{method}: {count} of {len(tasks)} task{'s' * (len(tasks) != 1)}")
     if data.at and data.bar_methods:
         text += (f"\n\nAt {step_label(data.at[-1])} env steps, at or above the mean of "
                  f"{', '.join(data.bar_methods)}: " + "; ".join(reached) + ".")
