@@ -392,6 +392,6 @@ def test_versus_table_and_figure_against_dreamerv3(tmp_path):
     # a group of one task has that task's row only, and counts that task alone
     assert ("| mjx_cartpole_swingup", "VSG-stoch32x8-starts256") not in rows
     assert "missing" in rows[("| mjx_cheetah_run", "VSG-stoch32x8-starts256")]
-    assert "VSG-stoch32x8-starts256: 0 of 1 task." in versus.markdown
+    assert "VSG-stoch32x8-starts256: 0 of 1 task;" in versus.markdown
     assert "VSG: 1 of 5 tasks; DreamerV2: 0 of 5 tasks" in versus.markdown
     assert len(built.missing) == len(experiment.runs) - 2
