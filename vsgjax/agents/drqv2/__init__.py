@@ -1,0 +1,1 @@
+"""DrQ-v2 (facebookresearch/drqv2): data-augmented DDPG from pixels or vectors."""
