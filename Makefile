@@ -12,9 +12,9 @@ SEEDS   ?=
 LOGDIR  ?= runs/$(TASK)-$(MODEL)-s{seed}
 ARGS    ?=
 PYTEST_ARGS ?=
-# Python with mimalloc preloaded (vsgjax/loop/allocator.py: XLA:CPU's scratch space is reused instead of
+# Python with mimalloc preloaded (vsgjax/allocator.py: XLA:CPU's scratch space is reused instead of
 # page-faulted back in on every update); plain Python where mimalloc is not installed.
-RUN      = MUJOCO_GL=osmesa PYOPENGL_PLATFORM=osmesa $(shell $(BIN)/python vsgjax/loop/allocator.py) $(BIN)/python
+RUN      = MUJOCO_GL=osmesa PYOPENGL_PLATFORM=osmesa $(shell $(BIN)/python vsgjax/allocator.py) $(BIN)/python
 
 .PHONY: setup test test-fast bench lint train evaluate clean
 

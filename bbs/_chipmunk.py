@@ -4,7 +4,7 @@ pymunk's public properties wrap every access in Python (a ``Vec2d`` per read, a 
 hook per write, callback and deferred-removal bookkeeping around ``Space.step``). On
 BringBackShapes' hot path (~15 reads and writes per physics sub-step) this costs 3-4 times the C
 calls themselves, so the simulation reaches the same C functions through ``pymunk._chipmunk``
-(pymunk is pinned to >= 7, < 8; ``tests/test_bbs.py`` checks these against the public API).
+(pymunk is pinned to >= 7, < 8; ``tests/bbs/test_bbs.py`` checks these against the public API).
 
 ``step`` skips what ``pymunk.Space.step`` adds around ``cpSpaceStep``: mass checks of newly
 added bodies, post-step callbacks and deferred adds/removals, none of which the simulation uses

@@ -33,8 +33,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import vsgjax
-from vsgjax.loop.load import TrainedRun
-from vsgjax.model import api
+from vsgjax.agents.dreamer import api
+from vsgjax.analysis.load import TrainedRun
 
 CONTEXT = 15
 HORIZON = 35
@@ -99,7 +99,8 @@ def rollout_data(run: TrainedRun, episode: dict, *, context: int = CONTEXT, hori
                  episode_index: int = -1) -> RolloutData:
     """The figure data of one episode (see :class:`RolloutData`).
 
-    The keys are used as :func:`vsgjax.loop.videos.open_loop_frames` uses them, so the frames equal
+    The keys are used as :func:`vsgjax.agents.dreamer.open_loop.open_loop_frames` uses them,
+    so the frames equal
     those of the run's open-loop video for the same key.
     """
     length = context + horizon

@@ -18,11 +18,8 @@ from pathlib import Path
 
 from vsgjax.config import MODELS, SIZES, ConfigError, make_config
 from vsgjax.envs import TaskError, parse_task
+from vsgjax.registry.agents import agent_entry
 
-# Each model's name in figures and tables: the reference scores' names, the ones the trainer
-# writes into scores.jsonl (tests/experiments/test_report.py checks that the two agree).
-METHOD_NAMES = {"dreamerv1": "DreamerV1", "dreamerv2": "DreamerV2", "vsg": "VSG",
-                "svsg": "SVSG", "ssm": "SSM"}
 PAPER_DIR = Path(__file__).resolve().parent / "paper"
 DEFAULT_ROOT = Path("runs")
 EVALUATION_FILE = "evaluation.jsonl"  # an evaluate job's episodes, one JSON object per line
@@ -72,7 +69,7 @@ class Run:
     @property
     def method(self) -> str:
         """The name in figures and tables (the reference scores' names for plain models)."""
-        return self.method_label or METHOD_NAMES[self.model] + (
+        return self.method_label or agent_entry(self.model).display + (
             f"-{self.variant}" if self.variant else "")
 
     @property
@@ -117,7 +114,7 @@ class Experiment:
     kind: str  # "train", "evaluate" (source's checkpoints) or "rollouts" (drawn from them)
     runs: tuple[Run, ...]
     figures: tuple[dict, ...] = ()
-    reference: str | None = None
+    reference: tuple[str, ...] = ()  # reference files (a TOML string or list of strings)
     source: str | None = None  # the experiment whose runs an evaluate/rollouts experiment uses
     episodes: int = 0  # evaluation episodes per run (kind "evaluate")
     seeds_per_process: int = 1  # seeds of one task and method the local launcher trains together
@@ -180,8 +177,19 @@ def load_experiment(name: str, size: str | None = None, seeds: int | None = None
         raise ExperimentError(f"{path}: seeds_per_process must be a positive integer, got "
                               f"{per_process!r}")
     return Experiment(name, data.get("description", ""), kind, tuple(runs),
-                      tuple(data.get("figures", ())), data.get("reference"), source,
+                      tuple(data.get("figures", ())), _references(path, data), source,
                       int(data.get("episodes", 0)), per_process)
+
+
+def _references(path: Path, data: dict) -> tuple[str, ...]:
+    """The experiment's reference files: ``reference = "a.json"`` or ``["a.json", "b.json"]``
+    (their curves are drawn together; the first one's step grid is the report's)."""
+    names = data.get("reference", ())
+    names = (names,) if isinstance(names, str) else tuple(names)
+    if not all(isinstance(name, str) and name for name in names):
+        raise ExperimentError(f"{path}: reference must be a file name or a list of them, got "
+                              f"{data.get('reference')!r}")
+    return names
 
 
 def _check_keys(path: Path, where: str, table: dict, valid: set[str]) -> None:

@@ -37,7 +37,7 @@ def actor_learns(monkeypatch) -> bool:
     loss is wrapped in ``stop_gradient`` (the actor never learns), and every learning test
     that uses this fixture must then FAIL: that shows it measures learning."""
     if BREAK_ACTOR_GRAD:
-        from vsgjax.model import behaviour
+        from vsgjax.agents.dreamer import behaviour
 
         original = behaviour.actor_loss
 
@@ -56,7 +56,7 @@ def perception_works(monkeypatch) -> bool:
     test that uses this fixture must then FAIL: that shows it measures learning from what the
     agent sees."""
     if BREAK_PERCEPTION:
-        from vsgjax.model.world_model import WorldModel
+        from vsgjax.agents.dreamer.world_model import WorldModel
 
         original = WorldModel.encode
 

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 
 from experiments.bench.bench_world_model import model_flops
 from experiments.bench.flops import count_flops
-from vsgjax.model.networks import ConvDecoder, ConvEncoder
+from vsgjax.agents.dreamer.networks import ConvDecoder, ConvEncoder
 
 
 def test_useful_flops_leave_out_zero_taps_and_match_a_hand_count():

@@ -17,6 +17,7 @@ from vsgjax.config import (
     make_config,
     to_dict,
 )
+from vsgjax.registry.agents import dreamer_models
 
 
 @pytest.mark.parametrize(
@@ -172,12 +173,14 @@ def test_from_dict_rejects_unknown_keys():
         from_dict(data)
 
 
-# --- the README's preset table --------------------------------------------------------------
+# --- the presets page's tables (docs/presets.md) ----------------------------------------------
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+PRESETS_PAGE = Path(__file__).resolve().parents[1] / "docs" / "presets.md"
 TABLE_HEADER = "| key | BBS | DMC | Atari | source |"
+CPU_HEADING = "## The `cpu` size (vector observations, `mjx_*` tasks)"
 DOMAIN_TASKS = {"BBS": "bbs_basic", "DMC": "dmc_walker_walk", "Atari": "atari_pong"}
 IDENTITY_KEYS = {"model.name", "env.task", "train.seed"}  # the run's name, not a preset
+DREAMER_MODELS = dreamer_models()  # the page's tables are the Dreamer family's
 
 
 def _cell_value(text: str):
@@ -192,19 +195,19 @@ def _cell_value(text: str):
 
 
 def _parse_cell(cell: str) -> dict:
-    """``"a; m1 b; m2 c"`` -> {model: value} for every model."""
+    """``"a; m1 b; m2 c"`` -> {model: value} for every model of the Dreamer family."""
     default, *exceptions = [part.strip() for part in cell.split(";")]
-    values = dict.fromkeys(MODELS, _cell_value(default))
+    values = dict.fromkeys(DREAMER_MODELS, _cell_value(default))
     for exception in exceptions:
         model, value = exception.split(" ", 1)
-        assert model in MODELS, f"unknown model {model!r} in cell {cell!r}"
+        assert model in DREAMER_MODELS, f"unknown model {model!r} in cell {cell!r}"
         values[model] = _cell_value(value)
     return values
 
 
-def readme_presets() -> dict:
-    """{key: {domain: {model: value}}} from the README's preset table."""
-    lines = README.read_text().splitlines()
+def page_presets() -> dict:
+    """{key: {domain: {model: value}}} from the presets page's `paper` table."""
+    lines = PRESETS_PAGE.read_text().splitlines()
     start = lines.index(TABLE_HEADER) + 2
     table = {}
     for line in lines[start:]:
@@ -216,22 +219,32 @@ def readme_presets() -> dict:
     return table
 
 
-def test_readme_preset_table_matches_make_config_cell_by_cell():
-    table = readme_presets()
+def test_presets_page_table_matches_make_config_cell_by_cell():
+    table = page_presets()
     configs = {(domain, model): make_config(task, model, "paper")
-               for domain, task in DOMAIN_TASKS.items() for model in MODELS}
-    wrong = [f"{key} {domain} {model}: README {want!r}, make_config {_get(config, key)!r}"
+               for domain, task in DOMAIN_TASKS.items() for model in DREAMER_MODELS}
+    wrong = [f"{key} {domain} {model}: page {want!r}, make_config {_get(config, key)!r}"
              for key, domains in table.items() for domain, models in domains.items()
              for model, want in models.items() for config in [configs[domain, model]]
              if _get(config, key) != want or type(_get(config, key)) is not type(want)]
     assert not wrong, "\n".join(wrong)
 
 
-def test_readme_preset_table_lists_every_config_key():
+def test_presets_page_table_lists_every_config_key_the_dreamer_family_reads():
+    from vsgjax.registry.agents import AGENTS, SHARED_SECTIONS
+
+    sections = {AGENTS[model].sections for model in DREAMER_MODELS}
+    assert len(sections) == 1, f"the Dreamer models read different sections: {sections}"
+    dreamer = {*AGENTS["vsg"].sections, *SHARED_SECTIONS}
     data = to_dict(make_config())
-    keys = {f"{section}.{name}" for section, values in data.items() if isinstance(values, dict)
-            for name in values}
-    assert keys - IDENTITY_KEYS == set(readme_presets())
+    all_sections = {section for section, values in data.items() if isinstance(values, dict)}
+    # A section the family does not read must be another agent's (DrQ-v2's ``drq``), so that a
+    # new section of the Dreamer family cannot drop out of the table unseen.
+    others = {section for name, entry in AGENTS.items() if name not in DREAMER_MODELS
+              for section in entry.sections}
+    assert all_sections - dreamer <= others, sorted(all_sections - dreamer - others)
+    keys = {f"{section}.{name}" for section in dreamer for name in data[section]}
+    assert keys - IDENTITY_KEYS == set(page_presets())
 
 
 def test_a_saved_config_that_predates_a_key_counts_it_as_its_default():
@@ -243,17 +256,18 @@ def test_a_saved_config_that_predates_a_key_counts_it_as_its_default():
     assert config_changes(saved, changed) == ["model.precision: 'float32' -> 'bfloat16'"]
 
 
-def test_readme_cpu_table_names_every_key_the_cpu_size_sets():
-    from vsgjax.config.presets import _SIZE, _SIZE_MODEL
+def test_presets_page_cpu_table_names_every_key_the_cpu_size_sets():
+    from vsgjax.agents.dreamer.presets import SIZE
+    from vsgjax.registry.agents import AGENTS
 
-    lines = README.read_text().splitlines()
-    start = lines.index("### The `cpu` size (vector observations, `mjx_*` tasks)")
+    lines = PRESETS_PAGE.read_text().splitlines()
+    start = lines.index(CPU_HEADING)
     header = next(i for i in range(start, len(lines)) if lines[i].startswith("| key |"))
     named = set()
     for line in lines[header + 2:]:
         if not line.startswith("|"):
             break
         named |= set(re.findall(r"`([a-z]+\.[a-z_]+)`", line.split("|")[1]))
-    sets = set(_SIZE["cpu"]) | {key for (size, _), values in _SIZE_MODEL.items()
-                                if size == "cpu" for key in values}
+    sets = set(SIZE["cpu"]) | {key for model in DREAMER_MODELS
+                               for key in AGENTS[model].by_size.get("cpu", {})}
     assert named == sets

@@ -11,16 +11,26 @@ from vsgjax.config.checks import (
     max_episode_steps,
     numeric_values,
 )
+from vsgjax.registry.agents import agent_entry
+from vsgjax.registry.tasks import VECTOR, family_of
 
 TASKS = ("bbs_basic", "dmc_walker_walk", "atari_pong", "mjx_cartpole_swingup")
 
 
 def test_every_preset_is_valid():
+    """Every model, task family and size that fit together resolve (DrQ-v2 acts in continuous
+    action spaces only, the cpu size reads vectors only)."""
+    resolved = 0
     for task in TASKS:
+        family = family_of(task)
         for model in MODELS:
             for size in SIZES:
-                if size not in VECTOR_SIZES or task.startswith("mjx_"):
+                fits = family.actions in agent_entry(model).actions and (
+                    size not in VECTOR_SIZES or family.observations == VECTOR)
+                if fits:
                     make_config(task, model, size)
+                    resolved += 1
+    assert resolved == 4 * 5 * 3 + 5 + 3 * 3 + 1  # Dreamer: 4 tasks x 3 sizes + cpu; DrQ-v2
 
 
 def test_every_numeric_key_has_a_range():

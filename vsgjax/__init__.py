@@ -4,7 +4,7 @@ Public API (imported lazily, so ``import vsgjax`` stays cheap)::
 
     config = vsgjax.make_config(task="bbs_basic", model="vsg", size="small")
     state = vsgjax.init(config, key, obs_shape=(64, 64, 3), action_dim=2)
-    state, metrics, posts = vsgjax.train_step(config, state, batch, key)
+    state, metrics, posts = vsgjax.world_model_step(config, state, batch, key)
     rollout = vsgjax.imagine(state.params, start, H=15, config=config, key=key, action_dim=2)
 
     run = vsgjax.load("runs/bbs_basic-vsg-s0")     # a trained run: config, params, episodes
@@ -24,20 +24,21 @@ _EXPORTS = {
     "make_config": "vsgjax.config",
     "Config": "vsgjax.config",
     "ConfigError": "vsgjax.config",
-    "make_dynamics": "vsgjax.model.dynamics",
-    "WorldModel": "vsgjax.model.world_model",
-    "init": "vsgjax.model.api",
-    "train_step": "vsgjax.model.api",
-    "imagine": "vsgjax.model.api",
-    "observe": "vsgjax.model.api",
-    "TrainState": "vsgjax.model.api",
-    "TrainedParams": "vsgjax.model.api",
-    "load": "vsgjax.loop.load",
-    "TrainedRun": "vsgjax.loop.load",
-    "make_optimizer": "vsgjax.model.optim",
-    "Agent": "vsgjax.model.agent",
-    "gate_statistics": "vsgjax.model.gate_statistics",
-    "GateStatistics": "vsgjax.model.gate_statistics",
+    "make_dynamics": "vsgjax.agents.dreamer.dynamics",
+    "WorldModel": "vsgjax.agents.dreamer.world_model",
+    "init": "vsgjax.agents.dreamer.api",
+    "world_model_step": "vsgjax.agents.dreamer.api",
+    "imagine": "vsgjax.agents.dreamer.api",
+    "observe": "vsgjax.agents.dreamer.api",
+    "TrainState": "vsgjax.agents.dreamer.api",
+    "TrainedParams": "vsgjax.agents.dreamer.api",
+    "load": "vsgjax.analysis.load",
+    "TrainedRun": "vsgjax.analysis.load",
+    "make_optimizer": "vsgjax.agents.dreamer.optim",
+    "DreamerAgent": "vsgjax.agents.dreamer.agent",
+    "make_agent": "vsgjax.agents",
+    "gate_statistics": "vsgjax.agents.dreamer.gate_statistics",
+    "GateStatistics": "vsgjax.agents.dreamer.gate_statistics",
 }
 
 __all__ = sorted(_EXPORTS)

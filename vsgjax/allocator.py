@@ -4,7 +4,7 @@ XLA:CPU allocates every call's scratch space with ``malloc`` and frees it when t
 with glibc, blocks that large are unmapped on ``free`` and page-faulted back in by the next
 update. mimalloc with :data:`MIMALLOC_OPTIONS` reuses them (docs/benchmarks.md has the numbers).
 It must be loaded when the process starts (``LD_PRELOAD``): the Makefile does it for every
-target; by hand, ``env $(python vsgjax/loop/allocator.py) python ...``. Running this file prints
+target; by hand, ``env $(python vsgjax/allocator.py) python ...``. Running this file prints
 the variable assignments (nothing where the library is not installed).
 """
 
@@ -51,9 +51,9 @@ def allocator_line() -> str:
     """One line for a run's header: which allocator this process uses."""
     if allocator_active():
         return ("host allocator: mimalloc, reusing freed memory for 100 ms "
-                "(vsgjax/loop/allocator.py)")
+                "(vsgjax/allocator.py)")
     return ("host allocator: the C library's (CPU updates run 1.5-2x faster with mimalloc: "
-            "start with `env $(python vsgjax/loop/allocator.py) ...`; make does)")
+            "start with `env $(python vsgjax/allocator.py) ...`; make does)")
 
 
 if __name__ == "__main__":

@@ -13,8 +13,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from vsgjax.analysis.evaluation import evaluate_logdir, format_table, write_episodes
 from vsgjax.config.checks import RANGES
-from vsgjax.loop.evaluate import evaluate_logdir, format_table, write_episodes
 from vsgjax.outdir import OutputDirError, check_output_dir
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vsgjax.keys import IMAGE_DTYPE, IMAGE_KEY, NON_OBS_KEYS, VECTOR_DTYPE
+from vsgjax.episode_keys import IMAGE_DTYPE, IMAGE_KEY, NON_OBS_KEYS, VECTOR_DTYPE
 
 _KINDS = "rank 3 (H, W, C) for an image or rank 1 (D,) for a vector"
 

@@ -17,21 +17,17 @@ from pathlib import Path
 
 import jax
 
-from vsgjax.config import (
-    MODELS,
-    SIZES,
-    VECTOR_TASK_PREFIX,
-    Config,
-    ConfigError,
-    make_config,
-)
+from vsgjax.allocator import allocator_line
+from vsgjax.config import MODELS, SIZES, Config, ConfigError, make_config
 from vsgjax.config.checks import RANGES
 from vsgjax.data.checkpoint import WriteError
-from vsgjax.envs import TaskError, parse_task, resolve_loop
-from vsgjax.loop.allocator import allocator_line
+from vsgjax.envs import TaskError, parse_task
 from vsgjax.loop.device_trainer import DeviceTrainer
 from vsgjax.loop.driver import LoopDriver, NonFiniteLossError, group_label
 from vsgjax.loop.host_trainer import HostTrainer
+from vsgjax.loop.resolve import resolve_loop
+from vsgjax.registry.agents import DEFAULT_MODEL
+from vsgjax.registry.tasks import DEFAULT_TASK, VECTOR, family_of, patterns
 
 COMPILATION_CACHE = Path.home() / ".cache" / "vsgjax" / "xla"
 
@@ -44,10 +40,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         prog="python -m vsgjax.train",
         description="Train a world-model agent (see `make train`).",
         epilog="Overrides are dotted config keys, e.g. train.steps=50000 wm.kl_scale=0.3.")
-    parser.add_argument("--task", default="bbs_basic",
-                        help="bbs_<variant>, dmc_<domain>_<task>, atari_<game> or "
-                             "mjx_<domain>_<task>")
-    parser.add_argument("--model", default="vsg", help=f"one of {', '.join(MODELS)}")
+    parser.add_argument("--task", default=DEFAULT_TASK, help=patterns())
+    parser.add_argument("--model", default=DEFAULT_MODEL, help=f"one of {', '.join(MODELS)}")
     parser.add_argument("--size", default="auto",
                         help="auto (paper on a GPU; on a CPU cpu for mjx_ tasks, small for the "
                              f"others) or one of {', '.join(SIZES)}")
@@ -69,13 +63,13 @@ def has_gpu() -> bool:
 
 
 def resolve_size(size: str, task: str) -> tuple[str, str]:
-    """(size, why): ``auto`` becomes ``paper`` when JAX sees a GPU, else ``cpu`` for the
-    vector-observation (``mjx_``) tasks and ``small`` for the others."""
+    """(size, why): ``auto`` becomes ``paper`` when JAX sees a GPU, else ``cpu`` for the tasks
+    with vector observations (``mjx_``) and ``small`` for the others."""
     if size != "auto":
         return size, "as requested"
     if has_gpu():
         return "paper", "auto: JAX sees a GPU"
-    if task.startswith(VECTOR_TASK_PREFIX):
+    if family_of(task).observations == VECTOR:
         return "cpu", "auto: no GPU, vector observations"
     return "small", "auto: no GPU"
 

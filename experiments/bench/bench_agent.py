@@ -1,6 +1,8 @@
-"""Agent update and acting costs (``vsgjax/model/agent.py``) at the ``small`` size on BBS shapes.
+"""Agent update and acting costs (``vsgjax/agents/dreamer/agent.py``) at the ``small`` size
+on BBS shapes.
 
-Per model: the jitted world-model-only update (``vsgjax.model.api.train_step``) against the agent's
+Per model: the jitted world-model-only update (``vsgjax.agents.dreamer.api.world_model_step``)
+against the agent's
 joint update (world model + imagination actor-critic), so the behaviour-learning share is
 visible, and one jitted ``policy_step`` for one env. Batch 16 x 50 of 64x64x3 images, horizon
 15 (small size), 800 imagined start states. Medians over ``REPEATS`` calls after compilation;
@@ -19,9 +21,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from vsgjax.agents.dreamer import api
+from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.config import make_config
-from vsgjax.model import api
-from vsgjax.model.agent import Agent
 
 MODELS = ("vsg", "svsg", "dreamerv2")
 REPEATS = 5
@@ -61,15 +63,15 @@ def median_times(fn, *args) -> tuple[float, float]:
 
 def bench_model(model: str) -> dict:
     config = make_config("bbs_basic", model, "small")
-    agent, key = Agent(config, (64, 64, 3), 2, False), jax.random.PRNGKey(0)
+    agent, key = DreamerAgent(config, (64, 64, 3), 2, False), jax.random.PRNGKey(0)
     batch, state = replay_batch(config, 2), agent.init(key)
     wm_state = api.TrainState(state.params["wm"], state.opt["wm"], state.step)
     row = {"model": model,
-           "wm_compile": compile_seconds(api.train_step, config, wm_state, batch, key),
+           "wm_compile": compile_seconds(api.world_model_step, config, wm_state, batch, key),
            "agent_compile": compile_seconds(agent.train_step, agent, state, batch, key)}
-    api.train_step(config, wm_state, batch, key)  # populate the call caches (compiled above)
+    api.world_model_step(config, wm_state, batch, key)  # populate the call caches (compiled above)
     agent.train_step(state, batch, key)
-    row["wm"] = median_times(lambda: api.train_step(config, wm_state, batch, key))
+    row["wm"] = median_times(lambda: api.world_model_step(config, wm_state, batch, key))
     row["agent"] = median_times(lambda: agent.train_step(state, batch, key))
     carry = agent.initial_carry(1)
     obs = {"image": batch["image"][:1, 0], "is_first": np.ones(1, bool)}
@@ -82,10 +84,10 @@ def bench_model(model: str) -> dict:
 def markdown(rows: list[dict]) -> str:
     load = " ".join(f"{x:.1f}" for x in os.getloadavg())
     lines = [
-        "## Agent update (`vsgjax/model/agent.py`, small size, BBS batch 16 x 50)",
+        "## Agent update (`vsgjax/agents/dreamer/agent.py`, small size, BBS batch 16 x 50)",
         "",
         f"Median of {REPEATS} calls after compilation; wall / process-CPU seconds. `wm` is the "
-        "world-model update alone (`api.train_step`), `agent` the joint update (world model + "
+        "world-model update alone (`api.world_model_step`), `agent` the joint update (world model + "
         "actor + critic over 800 start states x horizon 15). `policy` is one jitted "
         f"`policy_step` for one env. Load average at the end: {load} (2 cores, shared).",
         "",

@@ -164,9 +164,9 @@ def make_policy(name: str, envs: EnvBatch):
     if name == "stand-in":
         params = standin_params(spec.obs_shape, spec.action_dim, jax.random.PRNGKey(0))
         return standin_policy, params, jnp.zeros((envs.num_envs, HIDDEN))
-    from vsgjax.model.agent import Agent
+    from vsgjax.agents.dreamer.agent import DreamerAgent
 
-    agent = Agent(make_config("bbs_basic", "vsg", name.removeprefix("vsg-")),
+    agent = DreamerAgent(make_config("bbs_basic", "vsg", name.removeprefix("vsg-")),
                   spec.obs_shape, spec.action_dim, spec.discrete)
 
     def policy(params, carry, obs, key):

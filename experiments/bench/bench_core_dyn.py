@@ -19,9 +19,9 @@ import jax
 import jax.numpy as jnp
 
 from experiments.bench.flops import count_flops
+from vsgjax.agents.dreamer.dynamics import make_dynamics
+from vsgjax.agents.dreamer.networks import embed_dim
 from vsgjax.config import make_config
-from vsgjax.model.dynamics import make_dynamics
-from vsgjax.model.networks import embed_dim
 
 MODELS = ("dreamerv2", "vsg", "svsg")
 BATCH, LENGTH, STARTS, HORIZON, ACTIONS, RUNS = 16, 50, 800, 15, 2, 7

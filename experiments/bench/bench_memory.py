@@ -1,6 +1,6 @@
 """Peak memory and time of the full agent update per size and host allocator.
 
-The full update (world model + imagination actor-critic, ``Agent.train_step``, batch 16 x 50,
+The full update (world model + imagination actor-critic, ``DreamerAgent.train_step``, batch 16 x 50,
 BBS presets) runs ``UPDATES`` times in a fresh process per (size, allocator); the parent
 samples the child's resident memory every 50 ms and stops it above ``RSS_LIMIT_GIB`` (this
 machine has 24 GiB: a child that keeps every freed byte was OOM-killed at 24.3 GiB at the
@@ -11,7 +11,7 @@ machine has 24 GiB: a child that keeps every freed byte was OOM-killed at 24.3 G
 
 Allocators: glibc; mimalloc keeping every freed byte (``MIMALLOC_PURGE_DELAY=-1``, the setting
 of earlier sessions); mimalloc returning memory unused for ``PURGE_DELAYS`` ms (100 ms is what
-:mod:`vsgjax.loop.allocator` sets).
+:mod:`vsgjax.allocator` sets).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-from vsgjax.loop.allocator import allocator_env, glibc_env, mimalloc_library
+from vsgjax.allocator import allocator_env, glibc_env, mimalloc_library
 
 UPDATES = 4
 RSS_LIMIT_GIB = 20.0
@@ -39,11 +39,11 @@ def measure(size: str) -> dict:
     import jax
 
     from experiments.bench.bench_agent import replay_batch
+    from vsgjax.agents.dreamer.agent import DreamerAgent
     from vsgjax.config import make_config
-    from vsgjax.model.agent import Agent
 
     config = make_config("bbs_basic", "vsg", size, ["train.batch=16", "train.length=50"])
-    agent = Agent(config, (64, 64, 3), 2, False)
+    agent = DreamerAgent(config, (64, 64, 3), 2, False)
     state = agent.init(jax.random.PRNGKey(0))
     batch = replay_batch(config, 2)
     times, faults = [], []
@@ -103,7 +103,8 @@ def run_child(size: str, env: dict[str, str]) -> dict:
 
 def markdown(rows: list[tuple[str, str, dict]]) -> str:
     lines = ["## Memory of the full agent update (host allocator)", "",
-             f"`Agent.train_step` (world model + actor + critic), VSG, BBS presets, batch 16 x 50, "
+             f"`DreamerAgent.train_step` (world model + actor + critic), VSG, BBS presets, "
+             f"batch 16 x 50, "
              f"median of {UPDATES} updates after the compiling one, one fresh process per row; "
              f"peak RSS from `getrusage` (a row stopped by the parent above {RSS_LIMIT_GIB:.0f} "
              "GiB says so). `faults` = minor page faults per update.", "",

@@ -3,7 +3,7 @@
 The `cpu_proprio` experiment's cost is the device loop's training calls (each one episode of
 every env with its 250 updates). This times one training call of VSG at the ``cpu`` size on
 ``mjx_cartpole_swingup`` in each way of running seeds on this machine, every process started
-with the allocator the launcher uses (:mod:`vsgjax.loop.allocator`):
+with the allocator the launcher uses (:mod:`vsgjax.allocator`):
 
 * one process, one seed (nothing else running);
 * two single-seed processes side by side (``launch --jobs 2``; their calls timed together after
@@ -96,7 +96,7 @@ def child(seeds: int, devices: int, repeats: int, barrier: str, size: str,
 def run_way(processes: int, seeds: int, devices: int, repeats: int, size: str,
             overrides: list[str]) -> list[dict]:
     """Start ``processes`` children together; each returns its median call."""
-    from vsgjax.loop.allocator import allocator_env
+    from vsgjax.allocator import allocator_env
 
     env = dict(os.environ, JAX_PLATFORMS="cpu", **allocator_env())
     if devices > 1:

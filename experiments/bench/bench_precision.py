@@ -1,5 +1,5 @@
-"""Mixed precision (``model.precision``, ``vsgjax/model/precision.py``): one jitted agent update
-(``Agent.train_step``: world model + imagination actor-critic) at the ``small`` size, float32
+"""Mixed precision (``model.precision``, ``vsgjax/agents/precision.py``): one jitted agent update
+(``DreamerAgent.train_step``: world model + imagination actor-critic) at the ``small`` size, float32
 against bfloat16, on BBS shapes (batch 16 x 50 of 64x64x3 images).
 
 Medians over ``REPEATS`` calls after compilation, wall and process-CPU seconds (``bench_agent``'s
@@ -17,8 +17,8 @@ from pathlib import Path
 import jax
 
 from experiments.bench import bench_agent
+from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.config import PRECISIONS, make_config
-from vsgjax.model.agent import Agent
 
 MODELS = ("vsg",)
 RESULTS = Path(__file__).parent / "results" / "precision.md"
@@ -26,7 +26,7 @@ RESULTS = Path(__file__).parent / "results" / "precision.md"
 
 def bench_update(model: str, precision: str) -> dict:
     config = make_config("bbs_basic", model, "small", [f"model.precision={precision}"])
-    agent, key = Agent(config, (64, 64, 3), 2, False), jax.random.PRNGKey(0)
+    agent, key = DreamerAgent(config, (64, 64, 3), 2, False), jax.random.PRNGKey(0)
     batch, state = bench_agent.replay_batch(config, 2), agent.init(key)
     compile_s = bench_agent.compile_seconds(agent.train_step, agent, state, batch, key)
     agent.train_step(state, batch, key)  # populate the call cache (compiled above)
@@ -40,7 +40,8 @@ def markdown(rows: list[dict]) -> str:
     lines = [
         "## Mixed precision (`model.precision`, agent update, small size, BBS batch 16 x 50)",
         "",
-        f"Median of {bench_agent.REPEATS} jitted `Agent.train_step` calls after compilation; "
+        f"Median of {bench_agent.REPEATS} jitted `DreamerAgent.train_step` calls after "
+        "compilation; "
         "wall / process-CPU seconds. bfloat16: matmul and convolution inputs in bfloat16, "
         "float32 accumulation, parameters and everything else; bfloat16 is not expected to "
         f"pay off on a CPU. Load average at the end: {load}.",

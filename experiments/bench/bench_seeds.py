@@ -15,7 +15,8 @@
    The share of the loop spent in collection (policy + env steps of all seeds) shows whether
    collection is on the critical path. A third configuration runs the S seeds in one process
    sharded over S forced host devices (one seed per device).
-2. One update, timed alone: the plain ``Agent.train_step``, the trainer's vmapped update of one
+2. One update, timed alone: the plain ``DreamerAgent.train_step``, the trainer's vmapped update
+   of one
    seed, of 2 seeds, and both sharded over 2 forced host devices
    (``XLA_FLAGS=--xla_force_host_platform_device_count=2``; on a CPU both "devices" share the
    same cores, so this measures the partitioning's overhead, not a speed-up).
@@ -116,12 +117,12 @@ def update_child(repeats: int) -> dict:
     import jax
 
     from experiments.bench.bench_agent import replay_batch
+    from vsgjax.agents.dreamer.agent import DreamerAgent
     from vsgjax.config import make_config
     from vsgjax.loop.parallel import Parallel, stack
-    from vsgjax.model.agent import Agent
 
     config = make_config(TASK, "vsg", "small")
-    agent = Agent(config, (64, 64, 3), 2, False)
+    agent = DreamerAgent(config, (64, 64, 3), 2, False)
     states = [agent.init(jax.random.PRNGKey(seed)) for seed in (0, 1)]
     batch = replay_batch(config, 2)
     key = jax.random.PRNGKey(0)
@@ -247,7 +248,7 @@ def markdown(table: list[tuple[int, dict, dict | None, dict | None]], updates: d
     plain = updates["plain"]
     for name, seconds in updates.items():
         seeds = 1 if name == "plain" else int(name.split("x")[0])
-        label = "plain `Agent.train_step`" if name == "plain" else name
+        label = "plain `DreamerAgent.train_step`" if name == "plain" else name
         lines.append(f"| {label} | {seconds:.3f} | {seconds / seeds:.3f} | "
                      f"{seconds / seeds / plain:.2f} |")
     return "\n".join(lines) + "\n"

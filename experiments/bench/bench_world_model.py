@@ -17,7 +17,7 @@ Measured, at batch 16 x length 50 with 64x64x3 images (BBS presets):
   with the rate each part reaches: the profile that says where time goes;
 * ``imagine`` throughput (start states x horizon per second) from 800 start states, H = 15;
 * the host allocator's effect: the profiled model's update again in a process on glibc's
-  malloc instead of mimalloc (:mod:`vsgjax.loop.allocator`), with page faults and kernel time
+  malloc instead of mimalloc (:mod:`vsgjax.allocator`), with page faults and kernel time
 per update.
 """
 
@@ -34,7 +34,7 @@ import sys
 import time
 from pathlib import Path
 
-from vsgjax.loop.allocator import allocator_active, allocator_env, glibc_env
+from vsgjax.allocator import allocator_active, allocator_env, glibc_env
 
 RESULTS = Path(__file__).parent / "results" / "world_model.md"
 # every child's answer is also appended here, so an interrupted run keeps what it measured
@@ -56,7 +56,7 @@ def lax_convolutions():
     """
     from jax import lax
 
-    from vsgjax.model import networks
+    from vsgjax.agents.dreamer import networks
 
     def flat(fn):
         def apply(x, kernel, dtype=None):  # the FLOP count does not depend on the dtype
@@ -137,19 +137,19 @@ def measure_update(model: str, size: str, updates: int) -> dict:
     """Compile and time the world-model update of one configuration (run in a subprocess)."""
     import jax
 
-    from vsgjax.model import api
+    from vsgjax.agents.dreamer import api
 
     config = _config(model, size)
     state = api.init(config, jax.random.PRNGKey(0))
     batch = _batch(config)
     key = jax.random.PRNGKey(1)
     start = time.perf_counter()
-    compiled = api.train_step.lower(config, state, batch, key).compile()
+    compiled = api.world_model_step.lower(config, state, batch, key).compile()
     compile_s = time.perf_counter() - start
     memory = compiled.memory_analysis()
     cost = compiled.cost_analysis()
     cost = cost[0] if isinstance(cost, list) else cost
-    flops = model_flops(lambda s, b, k: api.train_step.__wrapped__(config, s, b, k),
+    flops = model_flops(lambda s, b, k: api.world_model_step.__wrapped__(config, s, b, k),
                         state, batch, key)
     times = []
     usage = resource.getrusage(resource.RUSAGE_SELF)
@@ -179,9 +179,9 @@ def measure_breakdown(model: str, size: str, repeats: int) -> list[dict]:
     import jax
     import jax.numpy as jnp
 
-    from vsgjax.model import api
-    from vsgjax.model.networks import image_to_float, normal_log_prob
-    from vsgjax.model.world_model import WorldModel
+    from vsgjax.agents.dreamer import api
+    from vsgjax.agents.dreamer.networks import image_to_float, normal_log_prob
+    from vsgjax.agents.dreamer.world_model import WorldModel
 
     config = _config(model, size)
     wm = WorldModel(config)
@@ -224,8 +224,8 @@ def measure_imagine(model: str, size: str, repeats: int) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from vsgjax.model import api
-    from vsgjax.model.world_model import WorldModel
+    from vsgjax.agents.dreamer import api
+    from vsgjax.agents.dreamer.world_model import WorldModel
 
     config = _config(model, size)
     wm = WorldModel(config)
@@ -258,7 +258,7 @@ def measure_imagine(model: str, size: str, repeats: int) -> dict:
 def _run_child(*args: str, glibc: bool = False) -> dict | list:
     """Run this module with ``args`` in a fresh process; return its JSON answer.
 
-    It runs on mimalloc (:mod:`vsgjax.loop.allocator`) unless ``glibc`` (the allocator comparison).
+    It runs on mimalloc (:mod:`vsgjax.allocator`) unless ``glibc`` (the allocator comparison).
     """
     root = Path(__file__).resolve().parents[2]
     env = dict(os.environ, PYTHONPATH=str(root) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -296,7 +296,7 @@ def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: lis
         f"Reference: a 2048x2048 float32 matmul in JAX reaches **{rate / 1e9:.1f} GFLOP/s**.",
         "",
         "Host allocator of every child process: "
-        + ("mimalloc (`vsgjax/loop/allocator.py`)." if updates and updates[0]["mimalloc"]
+        + ("mimalloc (`vsgjax/allocator.py`)." if updates and updates[0]["mimalloc"]
            else "the C library's (mimalloc is not installed)."),
         "",
         "FLOPs = matmul + convolution FLOPs of the update counted from its jaxpr, every scan "
@@ -332,7 +332,7 @@ def report(rate: float, updates: list[dict], breakdown: list[dict], imagine: lis
                          f"{100 * achieved / rate:.0f}% |")
     if allocator:
         lines += ["", "Host allocator: the same update in a process on glibc's malloc (no "
-                  "`LD_PRELOAD`) against mimalloc above (`vsgjax/loop/allocator.py`); kernel time "
+                  "`LD_PRELOAD`) against mimalloc above (`vsgjax/allocator.py`); kernel time "
                   "is the "
                   "process's system CPU time (both cores), mostly zero-filling faulted pages.", "",
                   "| model | size | update (s) glibc | mimalloc | speed-up | page faults / update "

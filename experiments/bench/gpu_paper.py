@@ -2,7 +2,8 @@
 
 For S = 1 and 5 seeds in one process and float32 / bfloat16 matmuls (``model.precision``):
 
-* one update alone: the trainer's vmapped ``Agent.train_step`` of S seeds at the ``paper`` size
+* one update alone: the trainer's vmapped ``DreamerAgent.train_step`` of S seeds at the
+  ``paper`` size
   (BBS presets, batch 16 x 50), median of ``UPDATE_REPEATS`` after compilation, and the peak
   device memory JAX reports;
 * the whole training loop (``bench_seeds.loop_child``): env steps and seed-updates per second,
@@ -32,13 +33,13 @@ def time_update(seeds: int, precision: str, size: str) -> tuple[float, int | Non
     import numpy as np
 
     from experiments.bench.bench_agent import replay_batch
+    from vsgjax.agents.dreamer.agent import DreamerAgent
     from vsgjax.config import make_config
     from vsgjax.loop.parallel import Parallel, stack
-    from vsgjax.model.agent import Agent
 
     config = make_config("bbs_basic", "vsg", size, [f"model.precision={precision}",
                                                     "train.batch=16", "train.length=50"])
-    agent = Agent(config, (64, 64, 3), 2, False)
+    agent = DreamerAgent(config, (64, 64, 3), 2, False)
     parallel = Parallel(agent, seeds, 1)
     state = parallel.put_state(stack([agent.init(jax.random.PRNGKey(s)) for s in range(seeds)]))
     batch = parallel.put_batch([replay_batch(config, 2)] * seeds)

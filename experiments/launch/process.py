@@ -13,15 +13,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from experiments.launch.jobs import LOG_FILE, REPO
+from vsgjax.allocator import allocator_env
 from vsgjax.data import checkpoint
-from vsgjax.loop.allocator import allocator_env
 
 STOP_TIMEOUT_S = 600  # how long a stopped job may take to save its checkpoint
 
 
 def job_env(parallel: int = 1) -> dict[str, str]:
     """The environment of a job's process: the launcher's, unbuffered output, the host
-    allocator of :mod:`vsgjax.host` and, with several jobs per machine, a share of the GPU."""
+    allocator of :mod:`vsgjax.allocator` and, with several jobs per machine, a share of the GPU."""
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     if "LD_PRELOAD" not in env:
         env.update(allocator_env())

@@ -125,8 +125,9 @@ def report_markdown(report: Report, context: Context, root: Path) -> str:
     elif experiment.kind == "rollouts":
         lines.append(f"- draws from the trained runs of experiment `{experiment.source}`")
     if experiment.reference:
-        lines.append(f"- reference: `experiments/reference_scores/{experiment.reference}` "
-                     "(see `experiments/reference_scores/PROVENANCE.md`)")
+        files = ", ".join(f"`experiments/reference_scores/{name}`"
+                          for name in experiment.reference)
+        lines.append(f"- reference: {files} (see `experiments/reference_scores/PROVENANCE.md`)")
     else:
         lines.append("- reference: none (no paper data in `experiments/reference_scores/`)")
     if context.reference is not None:

@@ -5,7 +5,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from experiments.report.reference import REFERENCE_DIR, Reference, load_reference
+from experiments.report.reference import (
+    REFERENCE_DIR,
+    Reference,
+    load_reference,
+    merge_references,
+)
 from experiments.report.runs import Curve, RunRecords
 from experiments.spec import Experiment, Run
 
@@ -28,9 +33,9 @@ class Context:
         """The grid spacing is ``spacing``, else the reference's, else (no reference, or runs
         shorter than ``FINE_GRID_BELOW`` reference bins) the runs' ``train.eval_every``."""
         reference = None
-        name = experiment.reference
-        if name and experiment.kind == "train":
-            reference = load_reference(name, reference_dir)
+        if experiment.reference and experiment.kind == "train":
+            reference = merge_references([load_reference(name, reference_dir)
+                                          for name in experiment.reference])
         steps = max((run.steps for run in experiment.runs), default=0)
         if spacing is None:
             if reference is not None and steps >= FINE_GRID_BELOW * reference.spacing > 0:

@@ -51,8 +51,8 @@ def discovery_data(context: Context, reference: dict | None = None) -> Discovery
     action repeat; the episode length capped at the time limit, the paper's maximum)."""
     experiment = context.experiment
     if reference is None:
-        reference = load_discovery_reference(experiment.reference or "vsg_paper_discovery.json",
-                                             context.reference_dir)
+        name = experiment.reference[0] if experiment.reference else "vsg_paper_discovery.json"
+        reference = load_discovery_reference(name, context.reference_dir)
     rows, missing, short = [], [], []
     for task in experiment.tasks:
         for method in experiment.methods:

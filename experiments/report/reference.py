@@ -10,6 +10,7 @@ import numpy as np
 
 import bbs
 from experiments.report.runs import Curve, scores_record
+from vsgjax.registry.tasks import family_of
 
 REFERENCE_DIR = Path(__file__).resolve().parents[1] / "reference_scores"
 # Method names of a reference file that differ from ours (the paper's names -> ours).
@@ -19,10 +20,12 @@ PAPER_METHODS = {"vsg_paper_bbs.json": {"VSGC": "VSG"}}
 def paper_task(task: str) -> str:
     """The reference files' name of our task: ``bbs_medium_d2`` ->
     ``bringbackshapes_sparse_distract2_size1.4``; ``mjx_walker_walk`` -> ``dmc_walker_walk``
-    (the same dm_control task); DMC and other names are the same."""
-    if task.startswith("mjx_"):
-        return "dmc_" + task.removeprefix("mjx_")
-    if task.startswith("bbs_") and task in bbs.VARIANTS:
+    (a family whose tasks are another's: the same dm_control task); DMC and other names are
+    the same."""
+    family = family_of(task)
+    if family.same_tasks_as:
+        return f"{family.same_tasks_as}_{task.partition('_')[2]}"
+    if task in bbs.VARIANTS:
         kwargs = bbs.VARIANTS[task]
         return (f"bringbackshapes_sparse_distract{kwargs['num_distractors']}"
                 f"_size{kwargs['arena_scale']:.1f}")
@@ -71,6 +74,23 @@ class Reference:
 
     def seeds(self, task: str, method: str) -> list[Curve]:
         return self.curves.get((task, method), [])
+
+
+def merge_references(references: list[Reference]) -> Reference:
+    """Several reference files as one (their (task, method) curves side by side; the first
+    file's step grid)."""
+    if len(references) == 1:
+        return references[0]
+    curves, names = {}, {}
+    for reference in references:
+        clash = set(curves) & set(reference.curves)
+        if clash:
+            raise ValueError(f"reference {reference.name} repeats curves of another file: "
+                             f"{sorted(clash)[:3]}")
+        curves.update(reference.curves)
+        names.update(reference.paper_names)
+    return Reference(" + ".join(r.name for r in references), curves, names,
+                     references[0].spacing)
 
 
 def load_reference(name: str, directory: Path = REFERENCE_DIR) -> Reference:

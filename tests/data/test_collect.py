@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from tests.support.fake_envs import FakeImageEnv
+from vsgjax.agents.acting import random_policy
 from vsgjax.config import make_config
-from vsgjax.data.collect import Collector, EnvBatch, make_env_batch, random_policy
+from vsgjax.data.collect import Collector, EnvBatch, make_env_batch
 from vsgjax.envs import EnvSpec
 from vsgjax.envs.wrappers import DefaultSeed
 

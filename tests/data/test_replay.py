@@ -266,3 +266,24 @@ def test_replay_rejects_episodes_with_other_keys_or_shapes():
     extra["more"] = np.zeros(10, np.float32)
     with pytest.raises(ValueError, match="more"):
         replay.add_episode(extra)
+
+
+def test_history_prepends_the_steps_before_and_repeats_the_first_at_an_episode_start():
+    """``history=h``: each window is the h steps before a sequence and the sequence, from one
+    episode; steps before the episode's first repeat it (frame stacking's edge padding)."""
+    replay = Replay(capacity=100, length=4, rng=0, history=2)
+    for episode_id, length in enumerate((5, 9)):
+        replay.add_episode(make_episode(length, episode_id=episode_id, seed=episode_id))
+    batch = replay.sample(500)
+    assert batch["step_id"].shape == (500, 6)
+    starts = batch["step_id"][:, 2]
+    expected = np.maximum(starts[:, None] + np.arange(-2, 4), 0)
+    np.testing.assert_array_equal(batch["step_id"], expected)
+    assert (batch["episode_id"] == batch["episode_id"][:, :1]).all()
+    assert {0, 1} <= set(starts.tolist())  # windows at the start are padded, not skipped
+    assert starts.max() == 9 - 4
+
+
+def test_history_must_not_be_negative():
+    with pytest.raises(ValueError, match="history must be >= 0"):
+        Replay(capacity=10, length=2, rng=0, history=-1)

@@ -9,8 +9,8 @@ import pytest
 
 from experiments import report
 from experiments.report import REFERENCE_DIR, Context, ReportWarning
-from experiments.spec import METHOD_NAMES, load_experiment
-from vsgjax.loop.rundir import METHOD_NAMES as TRAINER_METHOD_NAMES
+from experiments.spec import load_experiment
+from vsgjax.registry.agents import AGENTS
 
 BBS_REFERENCE = json.loads((REFERENCE_DIR / "vsg_paper_bbs.json").read_text())
 DISCOVERY_REFERENCE = json.loads((REFERENCE_DIR / "vsg_paper_discovery.json").read_text())
@@ -54,8 +54,12 @@ def test_names_map_to_the_reference_files():
     assert report.load_reference("vsg_paper_dmc.json").spacing == 50_000
 
 
-def test_method_names_are_the_ones_the_trainer_writes():
-    assert METHOD_NAMES == TRAINER_METHOD_NAMES
+def test_the_paper_files_methods_are_registered_display_names():
+    """Runs write their agent's display name (the registry's); the paper's curves use the same
+    names, so the report pairs them."""
+    displays = {entry.display for entry in AGENTS.values()}
+    for name in ("vsg_paper_bbs.json", "vsg_paper_dmc.json"):
+        assert {method for _, method in report.load_reference(name).curves} <= displays
 
 
 def test_binning_rule():

@@ -4,10 +4,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-from vsgjax.loop import allocator
+from vsgjax import allocator
 
 ROOT = Path(__file__).resolve().parents[2]
-REPORT = "from vsgjax.loop import allocator; import numpy; numpy.ones(1 << 26).sum(); " \
+REPORT = "from vsgjax import allocator; import numpy; numpy.ones(1 << 26).sum(); " \
          "print(allocator.allocator_active()); print(allocator.allocator_line())"
 
 
@@ -30,14 +30,14 @@ def test_a_process_started_with_the_env_runs_on_mimalloc():
     active, line = _child(dict(base, **allocator.allocator_env()))
     assert active == "True" and "mimalloc" in line
     active, line = _child(allocator.glibc_env(dict(base, **allocator.allocator_env())))
-    assert active == "False" and "python vsgjax/loop/allocator.py" in line
+    assert active == "False" and "python vsgjax/allocator.py" in line
 
 
 def test_the_makefile_starts_python_with_the_allocator():
-    printed = subprocess.run([sys.executable, "vsgjax/loop/allocator.py"], cwd=ROOT,
+    printed = subprocess.run([sys.executable, "vsgjax/allocator.py"], cwd=ROOT,
                              capture_output=True,
                              text=True, check=True).stdout.split()
     assert printed == [f"{k}={v}" for k, v in allocator.allocator_env().items()]
     makefile = (ROOT / "Makefile").read_text()
-    assert "$(shell $(BIN)/python vsgjax/loop/allocator.py) $(BIN)/python" in makefile
+    assert "$(shell $(BIN)/python vsgjax/allocator.py) $(BIN)/python" in makefile
     assert makefile.count("$(RUN) -m") >= 4  # test, test-fast, bench, train, evaluate

@@ -21,10 +21,11 @@ import pytest
 from vsgjax import train
 from vsgjax.config import ConfigError, make_config
 from vsgjax.data import checkpoint
+from vsgjax.data.replay.device import DeviceReplay
 from vsgjax.envs import TaskError
 from vsgjax.envs.mjx import make_mjx_task
-from vsgjax.keys import VECTOR_KEY
-from vsgjax.loop.device_program import DeviceProgram, DeviceReplay
+from vsgjax.episode_keys import VECTOR_KEY
+from vsgjax.loop.device_program import DeviceProgram
 
 ROOT = Path(__file__).resolve().parents[2]
 TASK = "mjx_cartpole_balance"

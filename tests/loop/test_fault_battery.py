@@ -47,13 +47,14 @@ import numpy as np
 import pytest
 
 from tests.support.subprocess_env import subprocess_env
+from vsgjax.agents.dreamer.agent import DreamerAgent
+from vsgjax.analysis.evaluation import evaluate_logdir
 from vsgjax.config import make_config
 from vsgjax.data import checkpoint
 from vsgjax.data.replay.store import read_episode
 from vsgjax.envs.mjx import make_mjx_task
+from vsgjax.loop.checkpoints import checkpoint_tree
 from vsgjax.loop.device_program import DeviceProgram
-from vsgjax.loop.evaluate import checkpoint_tree, evaluate_logdir
-from vsgjax.model.agent import Agent
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN_TIMEOUT = 900
@@ -191,7 +192,7 @@ def kill_in_host_update(n):
 
 def kill_in_host_evaluation(n):
     """The host loop's n-th evaluation dies when its episode has finished."""
-    from vsgjax.loop.evaluate import Evaluator
+    from vsgjax.loop.evaluator import Evaluator
     run, on_episode, due = Evaluator.run, Evaluator._on_episode, counter(n)
 
     def patched_run(self, *args, **kwargs):
@@ -477,7 +478,8 @@ def restore_target(loop: str):
     config = make_config(task, "vsg", "debug", overrides)
     key = jax.random.PRNGKey(0)
     if loop == "host":
-        return checkpoint_tree(jax.eval_shape(Agent(config, (64, 64, 3), 2, False).init, key),
+        agent = DreamerAgent(config, (64, 64, 3), 2, False)
+        return checkpoint_tree(jax.eval_shape(agent.init, key),
                                key)
     env = config.env
     program = DeviceProgram(config, make_mjx_task(task, env.action_repeat, env.time_limit))

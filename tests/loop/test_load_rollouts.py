@@ -17,13 +17,13 @@ import pytest
 import vsgjax
 from experiments import rollouts
 from tests.support.subprocess_env import subprocess_env
+from vsgjax.agents.dreamer import api
+from vsgjax.agents.dreamer.agent import DreamerAgent
+from vsgjax.agents.dreamer.gate_statistics import gate_statistics
 from vsgjax.config import make_config, to_dict
 from vsgjax.data import checkpoint
-from vsgjax.loop import videos
-from vsgjax.loop.evaluate import checkpoint_tree
-from vsgjax.model import api
-from vsgjax.model.agent import Agent
-from vsgjax.model.gate_statistics import gate_statistics
+from vsgjax.agents.dreamer import open_loop
+from vsgjax.loop.checkpoints import checkpoint_tree
 
 ROOT = Path(__file__).resolve().parents[2]
 NOTEBOOK = ROOT / "experiments" / "notebooks" / "imagine.ipynb"
@@ -178,7 +178,7 @@ def test_rollout_data_is_the_papers_grid_with_gates_from_the_states(run):
     assert data.frames.shape == (6, 50, 64, 64, 3) and data.frames.dtype == np.uint8
     np.testing.assert_array_equal(data.frames[0], episode["image"][:50])
     # the same frames as the run's open-loop video for the same key
-    video = videos.open_loop_frames(run.config, run.params.wm, episode, key)
+    video = open_loop.open_loop_frames(run.config, run.params.wm, episode, key)
     np.testing.assert_array_equal(np.concatenate(list(data.frames), axis=2), video)
     assert data.gates.shape == (run.config.model.deter, 50)
     assert set(np.unique(data.gates)) <= {0.0, 1.0} and 0 < data.gates.mean() < 1
@@ -214,7 +214,7 @@ def test_a_model_without_gates_gets_the_grid_and_a_note(logdir, tmp_path):
     newest = sorted((logdir / "episodes").glob("*.mcap"))[-1]
     (other / "episodes" / newest.name).write_bytes(newest.read_bytes())
     key = jax.random.PRNGKey(0)
-    state = Agent(config, (64, 64, 3), 2, False).init(key)
+    state = DreamerAgent(config, (64, 64, 3), 2, False).init(key)
     checkpoint.save(other / "checkpoints", 0, checkpoint_tree(state, key))
     notes = []
     data, written = rollouts.make_rollouts(other, tmp_path / "out", samples=2, say=notes.append)

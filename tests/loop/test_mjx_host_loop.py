@@ -1,4 +1,5 @@
-"""The host loop on MJX tasks (vsgjax/envs/mjx/host.py through vsgjax/collect.py EnvBatch).
+"""The host loop on MJX tasks (vsgjax/envs/mjx/vector_env.py through vsgjax/data/collect.py's
+EnvBatch).
 
 A debug VSG on ``mjx_cartpole_balance`` with a 40-step time limit (20 agent steps per episode)
 and 2 envs, the setting of tests/loop/test_device_loop.py.
@@ -13,6 +14,8 @@ import numpy as np
 import pytest
 
 from vsgjax import train
+from vsgjax.analysis.evaluation import evaluate_logdir
+from vsgjax.analysis.load import load
 from vsgjax.config import ConfigError, make_config
 from vsgjax.data import checkpoint
 from vsgjax.data.collect import EnvBatch, make_env_batch
@@ -20,12 +23,10 @@ from vsgjax.data.replay.store import read_episode
 from vsgjax.envs import EVAL_SEED_OFFSET, EnvSpec, TaskError, make_env
 from vsgjax.envs.mjx import make_mjx_task
 from vsgjax.envs.mjx.vector_env import MjxVectorEnv, seed_keys
-from vsgjax.keys import VECTOR_KEY
+from vsgjax.episode_keys import VECTOR_KEY
 from vsgjax.loop.device_program import DeviceProgram
-from vsgjax.loop.evaluate import evaluate_logdir
 from vsgjax.loop.host_trainer import HostTrainer
-from vsgjax.loop.load import load
-from vsgjax.model.observations import ObsSpec
+from vsgjax.observations import ObsSpec
 
 TASK = "mjx_cartpole_balance"
 SHORT = ["env.time_limit=40", "env.num_envs=2", "train.length=8", "train.batch=3",

@@ -17,7 +17,7 @@ import pytest
 
 import vsgjax
 from vsgjax import train
-from vsgjax.loop.evaluate import evaluate_logdir
+from vsgjax.analysis.evaluation import evaluate_logdir
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures" / "rundir_v1"
 RUNS = {

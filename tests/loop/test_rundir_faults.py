@@ -118,7 +118,7 @@ def test_one_corrupt_checkpoint_is_set_aside_and_not_counted_among_the_kept(tmp_
         assert [step for step, _ in run.checkpoints()] == [20, 30, 50]  # 3 kept, all good
         assert (tmp_path / "checkpoints" / "corrupt" / bad.name).exists()
     finally:
-        run.release()
+        run.unlock()
 
 
 def test_a_run_with_a_corrupt_newest_checkpoint_resumes_from_the_one_before(old_run, capsys):
@@ -182,7 +182,7 @@ def test_a_second_process_is_refused_naming_the_holder_and_a_killed_ones_lock_is
         holder.wait()
     run = RunWriter(config(), tmp_path)  # the killed holder's lock is taken over
     assert (tmp_path / LOCK_FILE).read_text().strip() == str(os.getpid())
-    run.release()
+    run.unlock()
 
 
 def test_the_lock_is_released_when_a_trainer_fails_to_start(tmp_path):
@@ -191,7 +191,7 @@ def test_the_lock_is_released_when_a_trainer_fails_to_start(tmp_path):
     with pytest.raises(ValueError, match="is a file"):
         train.make_trainer([config(), config("train.seed=1")], [tmp_path / "a", tmp_path / "b"],
                            progress=False)
-    RunWriter(config(), tmp_path / "a").release()  # seed 0's directory is free again
+    RunWriter(config(), tmp_path / "a").unlock()  # seed 0's directory is free again
 
 
 # --- log directories that cannot be written --------------------------------------------------
@@ -274,7 +274,7 @@ def test_a_failing_write_names_the_path_and_keeps_the_previous_checkpoint_and_ep
     assert checkpoint.restore(tmp_path / "checkpoints", {"x": np.zeros(3, int)}).step == 10
     assert len(store.load()) == 1
     assert not [p for p in tmp_path.rglob("*.tmp")]
-    run.release()
+    run.unlock()
 
 
 def test_train_reports_a_failing_write_in_one_line(old_run, capsys, monkeypatch):

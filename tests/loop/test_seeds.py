@@ -20,7 +20,7 @@ import pytest
 from vsgjax import train
 from vsgjax.config import ConfigError, make_config
 from vsgjax.data import checkpoint
-from vsgjax.loop.evaluate import restore_latest
+from vsgjax.loop.checkpoints import restore_latest
 from vsgjax.loop.host_trainer import HostTrainer
 from vsgjax.loop.parallel import mesh_shape, stack, take
 
@@ -177,7 +177,7 @@ def test_bad_seeds_and_devices_are_errors_naming_them(capsys, tmp_path):
 
 SHARDED = textwrap.dedent("""
     import jax, numpy as np
-    from tests.model.test_agent import make_agent, make_batch
+    from tests.agents.dreamer.test_agent import make_agent, make_batch
     from vsgjax.loop.parallel import Parallel, stack
     agent = make_agent("vsg", False)
     assert len(jax.devices()) == 2

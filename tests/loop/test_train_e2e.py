@@ -23,12 +23,14 @@ import pytest
 
 from tests.support.subprocess_env import subprocess_env
 from vsgjax import train
+from vsgjax.agents.dreamer.agent import DreamerAgent
+from vsgjax.analysis.evaluation import format_table
 from vsgjax.config import make_config
 from vsgjax.data import checkpoint
 from vsgjax.loop import driver, schedule
-from vsgjax.loop.evaluate import format_table, restore_latest, summarize
+from vsgjax.loop.checkpoints import restore_latest
+from vsgjax.loop.evaluator import summarize
 from vsgjax.loop.logger import Logger, truncate_metrics
-from vsgjax.model.agent import Agent
 
 ROOT = Path(__file__).resolve().parents[2]
 # Short episodes so that a few hundred env steps hold several of them.
@@ -148,7 +150,7 @@ def test_non_finite_loss_stops_with_message_and_keeps_last_good_checkpoint(
         loss = jnp.where(state.step == 2, jnp.nan, 1.0)
         return state._replace(step=state.step + 1), {"wm/loss": loss}
 
-    monkeypatch.setattr(Agent, "train_step", fake_train_step)
+    monkeypatch.setattr(DreamerAgent, "train_step", fake_train_step)
     code = train.main(["--size", "debug", "--logdir", str(tmp_path), "--no-progress",
                        "env.time_limit=200", "train.ckpt_every=1", "train.eval_every=100000"])
     err = capsys.readouterr().err
@@ -156,7 +158,7 @@ def test_non_finite_loss_stops_with_message_and_keeps_last_good_checkpoint(
     assert "non-finite metrics at update 3" in err and "wm/loss=nan" in err
     assert "ckpt-" in err
     config = make_config("bbs_basic", "vsg", "debug", ["env.time_limit=200"])
-    agent = Agent(config, (64, 64, 3), 2, False)
+    agent = DreamerAgent(config, (64, 64, 3), 2, False)
     restored = restore_latest(tmp_path / "checkpoints", agent, jax.random.PRNGKey(0))
     assert restored.meta["counters"]["updates"] == 2
     assert int(restored.tree["agent"].step) == 2

@@ -4,7 +4,8 @@
     posts = run.observe(run.episode(-1))           # posterior states [T, ...]
     out = vsgjax.imagine(run.params, jax.tree.map(lambda x: x[14], posts), H=15)
 
-``run.params`` is a :class:`vsgjax.model.api.TrainedParams`, which carries the run's config.
+``run.params`` is a :class:`vsgjax.agents.dreamer.api.TrainedParams`, which carries the run's
+config (for the Dreamer family).
 The observation spec and action size come from the newest stored episode (an env is built only
 when the run has none).
 """
@@ -19,32 +20,38 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vsgjax.agents import make_agent
+from vsgjax.agents.dreamer import api
+from vsgjax.agents.dreamer.api import TrainedParams
+from vsgjax.agents.dreamer.networks import float_to_image
+from vsgjax.agents.dreamer.world_model import WorldModel
+from vsgjax.agents.interface import Agent, AgentParams
 from vsgjax.config import Config
 from vsgjax.data.collect import make_env_batch
 from vsgjax.data.replay.store import read_episode
-from vsgjax.envs import EnvSpec, parse_task
-from vsgjax.keys import IMAGE_KEY, NON_OBS_KEYS
-from vsgjax.loop.evaluate import restore_latest
+from vsgjax.envs import EnvSpec
+from vsgjax.episode_keys import IMAGE_KEY, NON_OBS_KEYS
+from vsgjax.loop.checkpoints import restore_latest
 from vsgjax.loop.rundir import RunDir
-from vsgjax.model import api
-from vsgjax.model.agent import Agent
-from vsgjax.model.api import TrainedParams
-from vsgjax.model.networks import float_to_image
-from vsgjax.model.observations import ObsSpec
-from vsgjax.model.world_model import WorldModel
+from vsgjax.observations import ObsSpec
+from vsgjax.registry.agents import dreamer_models
+from vsgjax.registry.tasks import DISCRETE, family_of
 
 STEP_INPUTS = ("action", "is_first")  # what the posterior reads besides the observations
 
 
 class TrainedRun:
-    """A trained run: ``config``, ``params`` (:class:`TrainedParams`), the checkpoint's
-    ``step`` (env steps) and ``checkpoint`` path, the ``spec`` of its env, its
-    ``world_model`` and ``agent`` (the functions), and its episodes, read on demand."""
+    """A trained run: ``config``, ``params`` (:class:`TrainedParams` for the models with a
+    world model, :class:`~vsgjax.agents.interface.AgentParams` otherwise), ``acting_params`` (what :meth:`act`
+    reads), the checkpoint's ``step`` (env steps) and ``checkpoint`` path, the ``spec`` of its
+    env, its ``agent`` and, for the Dreamer family, ``world_model`` (the functions), and its
+    episodes, read on demand."""
 
-    def __init__(self, logdir: Path, config: Config, params: TrainedParams, spec: EnvSpec,
-                 step: int, checkpoint: Path):
+    def __init__(self, logdir: Path, config: Config, params: TrainedParams | AgentParams,
+                 spec: EnvSpec, step: int, checkpoint: Path):
         self.logdir, self.config, self.params = logdir, config, params
         self.spec, self.step, self.checkpoint = spec, step, checkpoint
+        self.acting_params = None
 
     def __repr__(self) -> str:
         return (f"TrainedRun({str(self.logdir)!r}: task={self.config.env.task} "
@@ -55,11 +62,15 @@ class TrainedRun:
 
     @functools.cached_property
     def agent(self) -> Agent:
-        return Agent(self.config, self.spec.obs, self.spec.action_dim, self.spec.discrete)
+        return make_agent(self.config, self.spec)
 
     @property
     def world_model(self) -> WorldModel:
         """Encoder, dynamics, decoder and heads (``encode``, ``decode``, ``reward_mean`` ...)."""
+        if not hasattr(self.agent, "world_model"):
+            raise ValueError(f"run {self.logdir} trained model {self.config.model.name!r}, which "
+                             "has no world model; the models with one: "
+                             + ", ".join(dreamer_models()))
         return self.agent.world_model
 
     @property
@@ -70,6 +81,14 @@ class TrainedRun:
     def gated(self) -> bool:
         """Whether the model's states carry gates (VSG, SVSG)."""
         return self.dynamics.gated
+
+    def act(self, obs: dict, carry=None, key: jax.Array | None = None, mode: str = "eval"):
+        """One acting step of the trained agent for a batch of observations (any agent):
+        ``obs`` holds the observation keys and ``is_first`` ``[N]``; returns ``(carry,
+        action)``. ``carry`` defaults to a fresh one, ``key`` to PRNGKey(0)."""
+        carry = self.agent.initial_carry(len(obs["is_first"])) if carry is None else carry
+        key = jax.random.PRNGKey(api.DEFAULT_SEED) if key is None else key
+        return self.agent.policy_step(self.acting_params, carry, obs, key, mode=mode)
 
     @functools.cached_property
     def policy(self):
@@ -177,7 +196,7 @@ def env_spec_of(logdir: Path, config: Config) -> EnvSpec:
             episode = read_episode(path)
         except Exception:  # a corrupt file: try the previous one
             continue
-        discrete = parse_task(config.env.task)[0] == "atari"
+        discrete = family_of(config.env.task).actions == DISCRETE
         return EnvSpec(_obs_shape_of(episode), int(episode["action"].shape[-1]), discrete)
     envs = make_env_batch(config.env, config.train.seed, 1, eval=True)
     try:
@@ -212,14 +231,16 @@ def load(logdir: str | Path) -> TrainedRun:
         raise FileNotFoundError(f"no checkpoint in {ckpt_dir}: {logdir} has no trained state "
                                 "yet (checkpoints are written during training)")
     spec = env_spec_of(logdir, config)
-    agent = Agent(config, spec.obs, spec.action_dim, spec.discrete)
+    agent = make_agent(config, spec)
     restored = restore_latest(ckpt_dir, agent, jax.random.PRNGKey(config.train.seed))
     if restored is None:
         raise FileNotFoundError(f"no readable checkpoint in {ckpt_dir}")
-    params = restored.tree["agent"].params
-    trained = TrainedParams(params["wm"], params.get("actor"), params.get("critic"), config,
-                            spec.action_dim, spec.discrete)
-    run = TrainedRun(logdir, config, trained, spec, restored.step, restored.path)
+    state = restored.tree["agent"]
+    params = AgentParams(state.params, config)
+    if config.model.name in dreamer_models():
+        params = TrainedParams(state.params["wm"], state.params.get("actor"),
+                               state.params.get("critic"), config, spec.action_dim, spec.discrete)
+    run = TrainedRun(logdir, config, params, spec, restored.step, restored.path)
     run.agent = agent  # the cached property, already built
+    run.acting_params = agent.acting_params(state)
     return run
-

@@ -22,22 +22,21 @@ The package: :mod:`~vsgjax.config.schema` (the dataclasses, overrides, the saved
 """
 
 from vsgjax.config.checks import RANGES, check_config
-from vsgjax.config.presets import VECTOR_SIZES, VECTOR_TASK_PREFIX, domain_of, make_config
+from vsgjax.config.presets import VECTOR_SIZES, make_config, preset_column
 from vsgjax.config.schema import (
     ACTOR_GRADS,
     ALIGNMENTS,
     CHOICES,
-    DOMAINS,
     ENCODERS,
     EPS_PLACEMENTS,
     LOOPS,
-    MODELS,
     PRECISIONS,
     SIZES,
     WEIGHT_DECAYS,
     BehaviourConfig,
     Config,
     ConfigError,
+    DrQConfig,
     EnvConfig,
     ModelConfig,
     OptimConfig,
@@ -49,11 +48,14 @@ from vsgjax.config.schema import (
     from_dict,
     to_dict,
 )
+from vsgjax.registry.agents import MODELS
+from vsgjax.registry.tasks import PRESET_COLUMNS as DOMAINS
 
 __all__ = [
     "ACTOR_GRADS", "ALIGNMENTS", "CHOICES", "DOMAINS", "ENCODERS", "EPS_PLACEMENTS", "LOOPS",
-    "MODELS", "PRECISIONS", "RANGES", "SIZES", "VECTOR_SIZES", "VECTOR_TASK_PREFIX",
-    "WEIGHT_DECAYS", "BehaviourConfig", "Config", "ConfigError", "EnvConfig", "ModelConfig",
+    "MODELS", "PRECISIONS", "RANGES", "SIZES", "VECTOR_SIZES",
+    "WEIGHT_DECAYS", "BehaviourConfig", "Config", "ConfigError", "DrQConfig", "EnvConfig",
+    "ModelConfig",
     "OptimConfig", "TrainConfig", "WorldModelConfig", "apply_overrides", "apply_values",
-    "check_config", "config_changes", "domain_of", "from_dict", "make_config", "to_dict",
+    "check_config", "config_changes", "from_dict", "make_config", "preset_column", "to_dict",
 ]

@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, fields
 
 from vsgjax.config.schema import Config, ConfigError
+from vsgjax.registry.tasks import family_of
 
 # Seeds up to 2**30 leave room below 2**31 for the evaluation envs' offset and the env index.
 MAX_SEED = 2**30
@@ -65,6 +66,10 @@ RANGES = {
     "ac.actor_lr": POSITIVE, "ac.critic_lr": POSITIVE, "ac.actor_grad_mix": UNIT,
     "ac.actor_min_std": AT_LEAST_0, "ac.entropy": AT_LEAST_0, "ac.slow_critic_every": AT_LEAST_1,
     "ac.eps": POSITIVE, "ac.clip": POSITIVE, "ac.weight_decay": AT_LEAST_0,
+    "drq.feature_dim": AT_LEAST_1, "drq.hidden": AT_LEAST_1, "drq.cnn_depth": AT_LEAST_1,
+    "drq.frame_stack": AT_LEAST_1, "drq.nstep": AT_LEAST_1, "drq.gamma": UNIT, "drq.tau": UNIT,
+    "drq.lr": POSITIVE, "drq.std_start": AT_LEAST_0, "drq.std_end": AT_LEAST_0,
+    "drq.std_steps": AT_LEAST_1, "drq.std_clip": AT_LEAST_0, "drq.shift_pad": AT_LEAST_0,
     "env.action_repeat": AT_LEAST_1, "env.time_limit": AT_LEAST_1, "env.image_size": AT_LEAST_1,
     "env.sticky": UNIT, "env.num_envs": AT_LEAST_1, "env.eval_envs": AT_LEAST_1,
     "train.seed": Range(0, MAX_SEED), "train.steps": AT_LEAST_1, "train.batch": AT_LEAST_1,
@@ -107,12 +112,12 @@ def numeric_values(config: Config) -> dict[str, float]:
 def max_episode_steps(config: Config) -> int:
     """The most steps an episode of the task stores (agent steps + the first observation).
 
-    BringBackShapes truncates after ``time_limit + 2`` physics sub-steps (bbs/env.py); the
-    other domains after ``time_limit`` env steps (DeepMind Control may end sooner, at its own
-    limit); an agent step is ``action_repeat`` of them.
+    BringBackShapes truncates after ``time_limit + 2`` physics sub-steps (bbs/env.py; its
+    family's ``extra_steps``); the other families after ``time_limit`` env steps (DeepMind
+    Control may end sooner, at its own limit); an agent step is ``action_repeat`` of them.
     """
     env = config.env
-    env_steps = env.time_limit + 2 if config.domain == "bbs" else env.time_limit
+    env_steps = env.time_limit + family_of(env.task).extra_steps
     return math.ceil(env_steps / env.action_repeat) + 1
 
 
@@ -136,7 +141,8 @@ def _check_sequences(config: Config) -> None:
 
 
 def _check_starts(config: Config) -> None:
-    """``ac.starts`` draws from the posteriors :func:`vsgjax.model.behaviour.start_states` gives."""
+    """``ac.starts`` draws from the posteriors that
+    :func:`vsgjax.agents.dreamer.behaviour.start_states` gives."""
     train = config.train
     drop_last = config.wm.discount_head and config.ac.alignment == "release"
     available = train.batch * (train.length - drop_last)
@@ -149,7 +155,7 @@ def _check_starts(config: Config) -> None:
 
 
 def _check_atari_options(config: Config) -> None:
-    if config.domain == "atari":
+    if family_of(config.env.task).grayscale_sticky:
         return
     for key in ATARI_OPTIONS:
         section, name = key.split(".")

@@ -1,164 +1,56 @@
-"""Presets: the values of a config per domain (the task's prefix), model and size, and
-:func:`make_config`, which resolves them, applies overrides and checks every value."""
+""":func:`make_config`: the presets of a task's column, an agent and a size, then overrides,
+then every value checked.
+
+The preset tables live with their agents (``vsgjax/agents/<family>/presets.py``: ``COLUMN`` and
+``SIZE``) and in the agent registry (:mod:`vsgjax.registry.agents`: what differs between the
+agents of one family); the task's preset column comes from the task-family registry
+(:mod:`vsgjax.registry.tasks`).
+"""
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Sequence
 
 from vsgjax.config.checks import check_config
 from vsgjax.config.schema import (
-    DOMAINS,
-    MODELS,
     SIZES,
     Config,
     ConfigError,
     EnvConfig,
     ModelConfig,
-    apply_overrides,
     apply_values,
+    parse_overrides,
+)
+from vsgjax.registry.agents import AGENTS, DEFAULT_MODEL, MODELS, AgentEntry, agent_entry
+from vsgjax.registry.tasks import (
+    DEFAULT_TASK,
+    FAMILIES,
+    VECTOR,
+    TaskError,
+    TaskFamily,
+    family_of,
 )
 
-# --- presets ---------------------------------------------------------------------------------
-# Each preset is a dict of dotted keys applied in order: domain, model, domain+model, size.
-
-_DOMAIN = {
-    "bbs": {
-        "env.action_repeat": 4, "env.time_limit": 3000,
-        "model.deter": 1024, "model.hidden": 1024,
-        "wm.cnn_depth": 48, "wm.mlp_layers": 4, "wm.mlp_units": 400,
-        "wm.reward_layers": 4, "wm.discount_layers": 4,
-        "wm.kl_scale": 1.0, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
-        "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.3, "wm.gate_free": 0.1,
-        "wm.lr": 1e-4, "wm.discount_head": True, "wm.discount_scale": 1.0,
-        "wm.reward_scale": 1.0, "wm.weight_decay": 1e-6,
-        "ac.actor_lr": 8e-5, "ac.critic_lr": 2e-4, "ac.gamma": 0.99, "ac.entropy": 2e-3,
-        "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
-        "train.batch": 16, "train.train_every": 5, "train.prefill": 10_000,
-        "train.oversample_ends": True, "train.pretrain": 1,
-        "train.steps": 2_500_000, "train.eval_every": 50_000, "train.eval_episodes": 10,
-    },
-    "dmc": {
-        "env.action_repeat": 2, "env.time_limit": 1000,
-        "model.deter": 1024, "model.hidden": 1024,
-        "wm.cnn_depth": 32, "wm.mlp_layers": 4, "wm.mlp_units": 400,
-        "wm.reward_layers": 2, "wm.discount_layers": 2,
-        "wm.kl_scale": 1.0, "wm.kl_balance": 0.8, "wm.kl_free": 1.0,
-        "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.4, "wm.gate_free": 0.1,
-        "wm.lr": 3e-4, "wm.discount_head": False, "wm.reward_scale": 2.0,
-        "wm.weight_decay": 0.0,
-        "ac.actor_lr": 8e-5, "ac.critic_lr": 8e-5, "ac.gamma": 0.99, "ac.entropy": 1e-4,
-        "ac.actor_layers": 4, "ac.critic_layers": 3, "ac.weight_decay": 0.0,
-        "train.batch": 50, "train.train_every": 5, "train.prefill": 2500,
-        "train.oversample_ends": False, "train.pretrain": 100,
-        "train.steps": 1_000_000, "train.eval_every": 10_000, "train.eval_episodes": 1,
-    },
-    "atari": {
-        "env.action_repeat": 4, "env.time_limit": 108_000, "env.grayscale": True,
-        "env.sticky": 0.25,
-        "model.deter": 600, "model.hidden": 600,
-        "wm.cnn_depth": 48, "wm.mlp_layers": 4, "wm.mlp_units": 400,
-        "wm.reward_layers": 4, "wm.discount_layers": 4,
-        "wm.kl_scale": 0.1, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
-        "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.4, "wm.gate_free": 0.1,
-        "wm.lr": 2e-4, "wm.discount_head": True, "wm.discount_scale": 5.0,
-        "wm.reward_scale": 1.0, "wm.reward_tanh": True, "wm.weight_decay": 1e-6,
-        "ac.actor_lr": 4e-5, "ac.critic_lr": 1e-4, "ac.gamma": 0.999, "ac.entropy": 1e-3,
-        "ac.actor_grad": "reinforce",
-        "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
-        # DreamerV2's Atari counts agent steps (x4 frames); here every count is in env steps
-        # (frames): 5e7 agent steps, prefill 5e4, eval every 2.5e5 (train_every stays in agent
-        # steps, as everywhere).
-        "train.batch": 16, "train.train_every": 16, "train.prefill": 200_000,
-        "train.oversample_ends": True, "train.pretrain": 1,
-        "train.steps": 200_000_000, "train.eval_every": 1_000_000, "train.eval_episodes": 1,
-    },
-}
-
-_MODEL = {
-    "dreamerv1": {"model.stoch": 30, "model.classes": 0, "model.cell_norm": True},
-    "dreamerv2": {"model.stoch": 32, "model.classes": 32, "model.cell_norm": True},
-    "vsg": {"model.stoch": 32, "model.classes": 32, "model.cell_norm": False},
-    "svsg": {"model.deter": 0, "model.stoch": 1024, "model.classes": 0,
-             "model.cell_norm": False, "wm.kl_masked": True},
-    "ssm": {"model.deter": 0, "model.stoch": 30, "model.classes": 0, "model.cell_norm": False},
-}
-
-_DOMAIN_MODEL = {
-    ("bbs", "svsg"): {"wm.kl_free": 1.0},
-    ("bbs", "dreamerv1"): {"wm.kl_free": 1.0, "model.stoch": 32},  # bringbackshapes_gaussian
-    ("dmc", "dreamerv1"): {"model.deter": 200, "model.hidden": 200},
-}
-
-_SIZE = {
-    "paper": {},
-    "small": {
-        "model.deter": 256, "model.hidden": 256, "wm.cnn_depth": 16,
-        "wm.mlp_layers": 2, "wm.mlp_units": 256, "wm.reward_layers": 2,
-        "wm.discount_layers": 2, "ac.actor_layers": 2, "ac.critic_layers": 2,
-        "train.batch": 8, "train.length": 32, "train.train_every": 2,
-        "train.prefill": 1000, "train.steps": 200_000,
-        "train.eval_every": 10_000, "train.eval_episodes": 2, "train.log_every": 200,
-        "train.replay_capacity": 500_000,
-    },
-    # Vector observations only (mjx_ tasks): chosen for return per CPU-minute (README, Presets).
-    "cpu": {
-        "model.deter": 128, "model.hidden": 128,
-        "wm.mlp_layers": 2, "wm.mlp_units": 128, "wm.reward_layers": 2,
-        "wm.discount_layers": 2, "ac.actor_layers": 2, "ac.critic_layers": 2,
-        "wm.lr": 1e-3, "ac.actor_lr": 3e-4, "ac.critic_lr": 3e-4,
-        "env.num_envs": 2, "train.batch": 16, "train.length": 32, "train.train_every": 2,
-        "train.prefill": 4000, "train.pretrain": 100, "train.steps": 100_000,
-        "train.eval_every": 4000, "train.eval_episodes": 4, "train.log_every": 2000,
-        "train.replay_capacity": 200_000,
-    },
-    "debug": {
-        "model.deter": 32, "model.hidden": 32, "wm.cnn_depth": 4,
-        "wm.mlp_layers": 1, "wm.mlp_units": 32, "wm.reward_layers": 1,
-        "wm.discount_layers": 1, "ac.actor_layers": 1, "ac.critic_layers": 1,
-        "ac.horizon": 5, "train.batch": 4, "train.length": 10, "train.prefill": 100,
-        "train.steps": 400, "train.train_every": 10, "train.pretrain": 1, "train.eval_every": 200,
-        "train.eval_episodes": 1, "train.log_every": 50, "train.ckpt_every": 5,
-        "train.video_every": 200, "train.replay_capacity": 10_000,
-    },
-}
-
-# Latent sizes per model at the small / debug sizes (the stochastic state shrinks with the rest).
-_SIZE_MODEL = {
-    ("small", "svsg"): {"model.deter": 0, "model.stoch": 256},
-    ("small", "ssm"): {"model.deter": 0},
-    ("small", "dreamerv2"): {"model.stoch": 16, "model.classes": 16},
-    ("small", "vsg"): {"model.stoch": 16, "model.classes": 16},
-    ("cpu", "svsg"): {"model.deter": 0, "model.stoch": 128},
-    ("cpu", "ssm"): {"model.deter": 0, "model.stoch": 16},
-    ("cpu", "dreamerv1"): {"model.stoch": 16},
-    ("cpu", "dreamerv2"): {"model.stoch": 8, "model.classes": 8},
-    ("cpu", "vsg"): {"model.stoch": 8, "model.classes": 8},
-    ("debug", "svsg"): {"model.deter": 0, "model.stoch": 32},
-    ("debug", "ssm"): {"model.deter": 0, "model.stoch": 8},
-    ("debug", "dreamerv1"): {"model.stoch": 8},
-    ("debug", "dreamerv2"): {"model.stoch": 4, "model.classes": 4},
-    ("debug", "vsg"): {"model.stoch": 4, "model.classes": 4},
-}
-
-
 VECTOR_SIZES = ("cpu",)  # sizes with only an MLP encoder: tasks with vector observations
-VECTOR_TASK_PREFIX = "mjx_"
-
-# Task families whose presets are another domain's: the MJX tasks are DeepMind Control tasks.
-PRESET_DOMAIN = {"mjx": "dmc"}
 
 
-def domain_of(task: str) -> str:
-    """The preset domain of a task name: its prefix before the first underscore (``mjx_``
-    tasks take the ``dmc`` presets)."""
-    prefix = task.split("_", 1)[0]
-    prefix = PRESET_DOMAIN.get(prefix, prefix)
-    if prefix not in DOMAINS or "_" not in task:
-        raise ConfigError(
-            f"unknown task {task!r}: task names look like "
-            "bbs_<variant>, dmc_<domain>_<task>, mjx_<domain>_<task> or atari_<game>"
-        )
-    return prefix
+def preset_column(task: str) -> str:
+    """The preset column of a task (its family's: ``mjx_`` tasks take the ``dmc`` column)."""
+    try:
+        return family_of(task).preset_column
+    except TaskError as error:
+        raise ConfigError(str(error)) from None
+
+
+def preset_layers(entry: AgentEntry, task: str, size: str) -> list[dict]:
+    """The presets of an agent for a task at a size, in the order they apply: the column's,
+    the entry's own, the task's (a presets module's ``for_task(name)``, given the task name
+    after its family's prefix), the size's."""
+    tables, column = importlib.import_module(entry.presets), preset_column(task)
+    for_task = getattr(tables, "for_task", lambda name: {})
+    return [tables.COLUMN[column], entry.model, entry.by_column.get(column, {}),
+            for_task(task.partition("_")[2]), tables.SIZE[size], entry.by_size.get(size, {})]
 
 
 def _check_name(kind: str, value: str, valid: Sequence[str]) -> None:
@@ -166,29 +58,60 @@ def _check_name(kind: str, value: str, valid: Sequence[str]) -> None:
         raise ConfigError(f"unknown {kind} {value!r}; valid: {', '.join(valid)}")
 
 
+def check_agent_fits(entry: AgentEntry, family: TaskFamily, task: str, size: str) -> None:
+    """The agent can act in the task's action space and read its observations, and the size
+    fits the observations; ConfigError naming the model, the task and why otherwise."""
+    if family.actions not in entry.actions:
+        raise ConfigError(f"model {entry.name!r} cannot train on {task!r}: the task acts in "
+                          f"a {family.actions} action space and {entry.display} acts only in "
+                          f"{' or '.join(entry.actions)} action spaces; valid models for "
+                          f"{task!r}: {', '.join(_models_for(family))}")
+    if family.observations not in entry.observations:
+        raise ConfigError(f"model {entry.name!r} cannot train on {task!r}: it reads "
+                          f"{' or '.join(entry.observations)} observations, the task gives "
+                          f"{family.observations} observations")
+    if size in VECTOR_SIZES and family.observations != VECTOR:
+        vector_tasks = " or ".join(f.pattern for f in FAMILIES.values()
+                                   if f.observations == VECTOR)
+        raise ConfigError(f"size {size!r} is for vector observations and task {task!r} has "
+                          f"images; valid: {vector_tasks} tasks with {size!r}, or sizes "
+                          f"{', '.join(s for s in SIZES if s != size)}")
+
+
+def _models_for(family: TaskFamily) -> list[str]:
+    return [name for name, entry in AGENTS.items()
+            if family.actions in entry.actions and family.observations in entry.observations]
+
+
+def check_keys_for(entry: AgentEntry, values: dict) -> None:
+    """Every override key is one the agent reads; ConfigError naming the key and the model."""
+    for key in values:
+        if not entry.takes(key):
+            raise ConfigError(
+                f"config key {key!r} is not read by model {entry.name!r} ({entry.display}); "
+                f"its keys: {', '.join(f'{s}.*' for s in entry.sections)}, env.*, train.*, "
+                "model.precision")
+
+
 def make_config(
-    task: str = "bbs_basic",
-    model: str = "vsg",
+    task: str = DEFAULT_TASK,
+    model: str = DEFAULT_MODEL,
     size: str = "paper",
     overrides: Sequence[str] = (),
 ) -> Config:
-    """Resolve presets for (task's domain, model, size), then apply ``key=value`` overrides;
-    every value is checked (:mod:`vsgjax.config_checks`)."""
-    domain = domain_of(task)
+    """Resolve presets for (task's column, model, size), then apply ``key=value`` overrides;
+    every value is checked (:mod:`vsgjax.config.checks`)."""
+    column = preset_column(task)
     _check_name("model", model, MODELS)
     _check_name("size", size, SIZES)
-    if size in VECTOR_SIZES and not task.startswith(VECTOR_TASK_PREFIX):
-        raise ConfigError(f"size {size!r} is for vector observations and task {task!r} has "
-                          f"images; valid: {VECTOR_TASK_PREFIX}<domain>_<task> tasks with "
-                          f"{size!r}, or sizes {', '.join(s for s in SIZES if s != size)}")
-    config = Config(domain=domain, size=size, model=ModelConfig(name=model),
+    entry = agent_entry(model)
+    check_agent_fits(entry, family_of(task), task, size)
+    config = Config(domain=column, size=size, model=ModelConfig(name=model),
                     env=EnvConfig(task=task))
-    layers = (
-        _DOMAIN[domain], _MODEL[model], _DOMAIN_MODEL.get((domain, model), {}),
-        _SIZE[size], _SIZE_MODEL.get((size, model), {}),
-    )
-    for preset in layers:
+    for preset in preset_layers(entry, task, size):
         config = apply_values(config, preset)
-    config = apply_overrides(config, overrides)
+    values = parse_overrides(overrides)
+    check_keys_for(entry, values)
+    config = apply_values(config, values)
     check_config(config)
     return config

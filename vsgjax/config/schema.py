@@ -10,15 +10,17 @@ import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 
-MODELS = ("dreamerv1", "dreamerv2", "vsg", "svsg", "ssm")
+from vsgjax.registry.agents import DEFAULT_MODEL
+from vsgjax.registry.tasks import DEFAULT_TASK, FAMILIES
+
 SIZES = ("paper", "small", "cpu", "debug")
-DOMAINS = ("bbs", "dmc", "atari")
-ALIGNMENTS = ("release", "next_state")  # ac.alignment: see vsgjax/model/behaviour.py
+ALIGNMENTS = ("release", "next_state")  # ac.alignment: see vsgjax/agents/dreamer/behaviour.py
 ACTOR_GRADS = ("auto", "dynamics", "reinforce", "both")
-EPS_PLACEMENTS = ("release", "optax")  # optim.eps_placement: see vsgjax/model/optim.py
-WEIGHT_DECAYS = ("release", "adamw")  # optim.weight_decay: see vsgjax/model/optim.py
+EPS_PLACEMENTS = ("release", "optax")  # optim.eps_placement: see vsgjax/agents/dreamer/optim.py
+WEIGHT_DECAYS = ("release", "adamw")  # optim.weight_decay: see vsgjax/agents/dreamer/optim.py
 PRECISIONS = ("float32", "bfloat16")  # model.precision: the dtype of matmuls and convolutions
-ENCODERS = ("auto", "cnn", "mlp")  # wm.encoder: see vsgjax/model/world_model.py (check_encoders)
+# wm.encoder: see vsgjax/agents/dreamer/world_model.py (check_encoders)
+ENCODERS = ("auto", "cnn", "mlp")
 LOOPS = ("auto", "host", "device")  # train.loop: see vsgjax/loop/device_program.py
 # String keys whose values are names from a fixed list (checked when a config is built).
 CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS,
@@ -35,7 +37,7 @@ class ConfigError(ValueError):
 class ModelConfig:
     """Latent dynamics."""
 
-    name: str = "vsg"
+    name: str = DEFAULT_MODEL
     deter: int = 1024  # deterministic state size (0 for the purely stochastic svsg / ssm)
     hidden: int = 1024  # width of the dense layers inside the dynamics
     stoch: int = 32  # Gaussian dims, or number of categorical variables
@@ -103,7 +105,8 @@ class BehaviourConfig:
 
 @dataclass(frozen=True)
 class OptimConfig:
-    """The update rule shared by the world-model, actor and critic optimizers (model/optim.py).
+    """The update rule shared by the world-model, actor and critic optimizers
+    (vsgjax/agents/dreamer/optim.py).
 
     Rates stay in their sections (``wm.lr``, ``wm.eps``, ``wm.weight_decay``, ``ac.*``).
     """
@@ -113,8 +116,27 @@ class OptimConfig:
 
 
 @dataclass(frozen=True)
+class DrQConfig:
+    """DrQ-v2, the model-free baseline (facebookresearch/drqv2's ``drqv2.py`` and ``cfgs/``)."""
+
+    feature_dim: int = 50  # the trunk: Linear(repr, 50) -> LayerNorm -> tanh
+    hidden: int = 1024  # actor and twin-Q MLP widths
+    cnn_depth: int = 32  # channels of the 4 conv layers (pixel observations only)
+    frame_stack: int = 3  # frames stacked along channels (pixel observations only)
+    nstep: int = 3  # n of the n-step return
+    gamma: float = 0.99
+    tau: float = 0.01  # Polyak rate of the target critic
+    lr: float = 1e-4  # Adam, for encoder, actor and critic
+    std_start: float = 1.0  # exploration std: linear from std_start ...
+    std_end: float = 0.1  # ... to std_end ...
+    std_steps: int = 500_000  # ... over this many agent steps (the task's horizon)
+    std_clip: float = 0.3  # the target's and the actor loss's noise clip
+    shift_pad: int = 4  # random-shift augmentation: edge-pad by this many pixels, crop back
+
+
+@dataclass(frozen=True)
 class EnvConfig:
-    task: str = "bbs_basic"
+    task: str = DEFAULT_TASK
     action_repeat: int = 4
     time_limit: int = 3000  # in env steps (physics sub-steps / frames), before action repeat
     image_size: int = 64
@@ -146,25 +168,32 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class Config:
-    domain: str = "bbs"
+    domain: str = FAMILIES[DEFAULT_TASK.partition("_")[0]].preset_column
     size: str = "paper"
     model: ModelConfig = field(default_factory=ModelConfig)
     wm: WorldModelConfig = field(default_factory=WorldModelConfig)
     ac: BehaviourConfig = field(default_factory=BehaviourConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
+    drq: DrQConfig = field(default_factory=DrQConfig)
     env: EnvConfig = field(default_factory=EnvConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
 
-def apply_overrides(config: Config, overrides: Sequence[str]) -> Config:
-    """Apply command-line style ``section.key=value`` strings (values parsed by field type)."""
+def parse_overrides(overrides: Sequence[str]) -> dict:
+    """Command-line style ``section.key=value`` strings -> ``{key: value}`` (values parsed by
+    the key's type; unknown keys are errors)."""
     values = {}
     for item in overrides:
         key, sep, text = item.partition("=")
         if not sep:
             raise ConfigError(f"override {item!r} is not of the form section.key=value")
         values[key.strip()] = _parse(key.strip(), text.strip(), _field_type(key.strip()))
-    return apply_values(config, values)
+    return values
+
+
+def apply_overrides(config: Config, overrides: Sequence[str]) -> Config:
+    """Apply command-line style ``section.key=value`` strings (values parsed by field type)."""
+    return apply_values(config, parse_overrides(overrides))
 
 
 def apply_values(config: Config, values: dict) -> Config:

@@ -22,12 +22,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vsgjax.agents.acting import Policy
 from vsgjax.config import EnvConfig
 from vsgjax.envs import EnvSpec, env_spec, make_envs
-from vsgjax.keys import IMAGE_KEY, STEP_KEYS, STREAM_KEYS
-from vsgjax.model.agent import Agent
+from vsgjax.episode_keys import IMAGE_KEY, STEP_KEYS, STREAM_KEYS
 
-Policy = Callable[[Any, Any, dict, jax.Array], tuple[Any, jax.Array]]
 OnEpisode = Callable[[dict, int, dict], None]
 DEFAULT_CHUNK = 50
 
@@ -192,42 +191,6 @@ def make_env_batch(env_cfg: EnvConfig, seed: int, num_envs: int, *, eval: bool =
     if num_envs < 1:
         raise ValueError(f"num_envs must be >= 1, got {num_envs}")
     return EnvBatch(make_envs(env_cfg, seed, num_envs, eval=eval), workers=workers)
-
-
-# --- device side -----------------------------------------------------------------------------
-
-
-def random_policy(spec: EnvSpec) -> Policy:
-    """Uniform random actions in the agent's format (one-hot if discrete); carry unused."""
-
-    def policy(params, carry, obs, key):
-        n = obs["is_first"].shape[0]
-        if spec.discrete:
-            index = jax.random.randint(key, (n,), 0, spec.action_dim)
-            return carry, jax.nn.one_hot(index, spec.action_dim, dtype=jnp.float32)
-        return carry, jax.random.uniform(key, (n, spec.action_dim), jnp.float32, -1.0, 1.0)
-
-    return policy
-
-
-def acting_policy(agent: Agent, spec: EnvSpec, mode: str):
-    """A collection policy over ``(agent params, explore_randomly)``.
-
-    ``explore_randomly`` (a bool scalar) swaps the agent's action for a uniform random one
-    (the prefill phase) while the agent's latent state still follows the observations, so one
-    compiled collector serves prefill and training.
-    """
-    uniform = random_policy(spec)
-
-    def policy(inputs, carry, obs, key):
-        params, explore_randomly = inputs
-        agent_key, random_key = jax.random.split(key)
-        carry, action = agent.policy_step(params, carry, obs, agent_key, mode=mode)
-        _, random_action = uniform(None, None, obs, random_key)
-        return carry, jnp.where(explore_randomly, random_action, action)
-
-    return policy
-
 
 
 class Collector:

@@ -19,6 +19,8 @@ from __future__ import annotations
 import gymnasium
 from gymnasium.wrappers import AtariPreprocessing, TimeLimit
 
+from vsgjax.envs.spec import one_of
+
 NOOP_MAX = 30
 
 
@@ -39,3 +41,13 @@ def make_atari(game: str, *, action_repeat: int, time_limit: int, size: int, gra
                              screen_size=size, terminal_on_life_loss=False,
                              grayscale_obs=grayscale, grayscale_newaxis=True)
     return TimeLimit(env, max_episode_steps=-(-time_limit // action_repeat))
+
+
+def parse(task: str, game: str) -> tuple[str]:
+    """``atari_<game>`` -> ``(game,)``; TaskError listing the games otherwise."""
+    return (one_of(task, game, all_games(), "Atari game"),)
+
+
+def build(args: tuple[str], cfg, seed: int) -> gymnasium.Env:
+    return make_atari(args[0], action_repeat=cfg.action_repeat, time_limit=cfg.time_limit,
+                      size=cfg.image_size, grayscale=cfg.grayscale, sticky=cfg.sticky)

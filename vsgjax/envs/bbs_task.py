@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import gymnasium
 
+from vsgjax.envs.spec import one_of
+
 
 def variant_names() -> list[str]:
     """Variant names without the ``bbs_`` prefix, e.g. ``basic``, ``medium_d4``."""
@@ -25,3 +27,13 @@ def make_bbs(variant: str, *, action_repeat: int, time_limit: int, size: int) ->
 
     return bbs.make(f"bbs_{variant}", action_repeat=action_repeat, time_limit=time_limit,
                     obs_size=size)
+
+
+def parse(task: str, variant: str) -> tuple[str]:
+    """``bbs_<variant>`` -> ``(variant,)``; TaskError listing the variants otherwise."""
+    return (one_of(task, variant, variant_names(), "BringBackShapes variant"),)
+
+
+def build(args: tuple[str], cfg, seed: int) -> gymnasium.Env:
+    return make_bbs(args[0], action_repeat=cfg.action_repeat, time_limit=cfg.time_limit,
+                    size=cfg.image_size)

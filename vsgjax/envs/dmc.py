@@ -23,6 +23,8 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 import gymnasium  # noqa: E402
 import numpy as np  # noqa: E402
 
+from vsgjax.envs.spec import TaskError  # noqa: E402
+
 CAMERA_BY_DOMAIN = {"quadruped": 2}
 SHADOW_MAP_SIZE = 512  # MuJoCo's default (2048 in the suite's models) costs 2x on a CPU renderer
 
@@ -88,3 +90,18 @@ class DMCEnv(gymnasium.Env):
     def close(self):
         """Free the GL context now (at interpreter exit dm_control's own cleanup can fail)."""
         self._env.physics.free()
+
+
+def parse(task: str, rest: str) -> tuple[str, str]:
+    """``dmc_<domain>_<task>`` -> ``(domain, task)``; TaskError listing the tasks otherwise."""
+    pairs = all_tasks()
+    for domain, name in pairs:
+        if f"{domain}_{name}" == rest:
+            return domain, name
+    raise TaskError(f"unknown DMC task {task!r}; valid: "
+                    + ", ".join(f"{task.partition('_')[0]}_{d}_{t}" for d, t in pairs))
+
+
+def build(args: tuple[str, str], cfg, seed: int) -> gymnasium.Env:
+    return DMCEnv(*args, action_repeat=cfg.action_repeat, time_limit=cfg.time_limit,
+                  size=cfg.image_size, seed=seed)

@@ -4,13 +4,21 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from vsgjax.model.observations import ObsSpec, obs_spec
+from vsgjax.observations import ObsSpec, obs_spec
+from vsgjax.registry.tasks import TaskError
+
+__all__ = ["EVAL_SEED_OFFSET", "EnvSpec", "TaskError", "one_of"]
 
 EVAL_SEED_OFFSET = 1_000_000  # eval env seeds are seed + offset, never a training env's seed
 
 
-class TaskError(ValueError):
-    """An unknown or malformed task name; the message lists what is valid."""
+def one_of(task: str, name: str, valid, what: str) -> str:
+    """``name`` if it is in ``valid``, else a TaskError listing the valid task names."""
+    if name not in valid:
+        family = task.partition("_")[0]
+        raise TaskError(f"unknown {what} in {task!r}; valid: "
+                        + ", ".join(f"{family}_{v}" for v in valid))
+    return name
 
 
 class EnvSpec(NamedTuple):

@@ -11,10 +11,10 @@ E = ceil(time_limit / action_repeat) agent steps per episode, U = E // train_eve
 episode (the release's ratio, rounded down per episode when train_every does not divide E).
 While prefilling, the same call acts randomly and makes no update (``train=False``).
 
-The replay is a ring of whole episodes in device memory, ``[M, N, E + 1, ...]`` (M = the
-episode batches that ``train.replay_capacity`` steps hold): a sequence of ``train.length``
-steps is cut from one stored episode at a uniform start, so it never crosses an episode
-boundary, and only finished episodes are sampled (as the host replay). Records follow the
+The replay is a ring of whole episodes in device memory (:mod:`vsgjax.data.replay.device`;
+M = the episode batches that ``train.replay_capacity`` steps hold), from which each update
+samples the windows its agent asks for (:attr:`~vsgjax.agents.interface.Agent.replay`).
+Records follow the
 host format: step 0 is the reset observation (``is_first``, zero action and reward), step t
 holds the observation that action t - 1 led to.
 
@@ -33,24 +33,24 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from vsgjax.agents import make_agent
+from vsgjax.agents.acting import acting_policy
+from vsgjax.agents.interface import Agent
 from vsgjax.config import Config
-from vsgjax.data.collect import acting_policy
+from vsgjax.data.replay.device import (
+    DeviceReplay,
+    empty_replay,
+    sample_windows,
+    store_episodes,
+)
 from vsgjax.envs import EnvSpec
-from vsgjax.keys import VECTOR_KEY
-from vsgjax.model.agent import Agent, AgentState
-
-
-class DeviceReplay(NamedTuple):
-    """A ring of ``M`` episode batches ``[M, N, E + 1, ...]``; ``stored`` counts batches."""
-
-    data: dict[str, jax.Array]
-    stored: jax.Array
+from vsgjax.episode_keys import VECTOR_KEY
 
 
 class LoopState(NamedTuple):
     """One seed's whole training state (a pytree; checkpointed whole)."""
 
-    agent: AgentState
+    agent: Any  # the agent's state
     replay: DeviceReplay
     key: jax.Array
 
@@ -64,7 +64,11 @@ class DeviceProgram:
 
     @functools.cached_property
     def agent(self) -> Agent:
-        return Agent(self.config, {VECTOR_KEY: (self.obs_dim,)}, self.task.action_dim, False)
+        return make_agent(self.config, self.spec)
+
+    @property
+    def spec(self) -> EnvSpec:
+        return EnvSpec({VECTOR_KEY: (self.obs_dim,)}, self.task.action_dim, False)
 
     @property
     def obs_dim(self) -> int:
@@ -87,10 +91,11 @@ class DeviceProgram:
 
     def check(self) -> None:
         """Raise for a config this loop cannot run, naming the value."""
-        train, steps = self.config.train, self.episode_steps + 1
-        if train.length > steps:
-            raise ValueError(f"train.length={train.length} is longer than an episode of "
-                             f"{self.task.name} ({steps} stored steps); valid: <= {steps}")
+        length, steps = self.agent.replay.length, self.episode_steps + 1
+        if length > steps:
+            raise ValueError(f"the agent's updates sample {length} steps (train.length for the "
+                             f"Dreamer family), longer than an episode of {self.task.name} "
+                             f"({steps} stored steps); valid: <= {steps}")
 
     # --- state ---------------------------------------------------------------------------------
 
@@ -102,15 +107,13 @@ class DeviceProgram:
                   "action": ((self.task.action_dim,), jnp.float32),
                   "reward": ((), jnp.float32), "is_first": ((), jnp.bool_),
                   "is_terminal": ((), jnp.bool_)}
-        data = {k: jnp.zeros((m, n, t, *shape), dtype) for k, (shape, dtype) in shapes.items()}
-        return LoopState(agent_state, DeviceReplay(data, jnp.zeros((), jnp.int32)),
+        return LoopState(agent_state, empty_replay(shapes, m, n, t),
                          jax.random.fold_in(key, 1))
 
     # --- one episode -------------------------------------------------------------------------
 
     def _policy(self, mode: str):
-        spec = EnvSpec((self.obs_dim,), self.task.action_dim, False)
-        return acting_policy(self.agent, spec, mode)
+        return acting_policy(self.agent, mode)
 
     def _observation(self, envs) -> dict[str, jax.Array]:
         return {VECTOR_KEY: self.task.flat_obs(envs.obs), "is_first": envs.is_first}
@@ -140,15 +143,9 @@ class DeviceProgram:
         return envs, self.agent.initial_carry(count), jax.tree.map(lambda x: x[None], first)
 
     def sample(self, replay: DeviceReplay, key: jax.Array) -> dict[str, jax.Array]:
-        """``train.batch`` sequences of ``train.length`` steps, each from one stored episode."""
-        train = self.config.train
-        m_key, n_key, s_key = jax.random.split(key, 3)
-        m, n, t = replay.data["reward"].shape
-        episode = jax.random.randint(m_key, (train.batch,), 0, jnp.minimum(replay.stored, m))
-        env = jax.random.randint(n_key, (train.batch,), 0, n)
-        start = jax.random.randint(s_key, (train.batch,), 0, t - train.length + 1)
-        times = start[:, None] + jnp.arange(train.length)
-        return {k: v[episode[:, None], env[:, None], times] for k, v in replay.data.items()}
+        """``train.batch`` windows of what the agent samples (:attr:`Agent.replay`)."""
+        length, history = self.agent.replay
+        return sample_windows(replay, key, self.config.train.batch, length, history)
 
     def _update(self, state: LoopState, key: jax.Array) -> tuple[LoopState, dict]:
         sample_key, update_key = jax.random.split(key)
@@ -172,7 +169,8 @@ class DeviceProgram:
         def block(loop, block_key):
             state, carry = loop
             step_key, update_key = jax.random.split(block_key)
-            carry, records = self._steps(state.agent.params, explore, "train", carry,
+            carry, records = self._steps(self.agent.acting_params(state.agent), explore,
+                                         "train", carry,
                                          jax.random.split(step_key, every))
             metrics = {}
             if train:
@@ -182,18 +180,13 @@ class DeviceProgram:
         (state, carry), (blocks, metrics) = jax.lax.scan(block, (state, (envs, carry)),
                                                          block_keys)
         tail = self.episode_steps - self.updates_per_episode * every
-        _, rest = self._steps(state.agent.params, explore, "train", carry,
+        _, rest = self._steps(self.agent.acting_params(state.agent), explore, "train", carry,
                               jax.random.split(tail_key, tail))
         records = jax.tree.map(
             lambda a, b, c: jnp.concatenate([a, b.reshape(-1, *b.shape[2:]), c]),
             first, blocks, rest)
         records = jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), records)  # [N, E + 1]
-        return state._replace(replay=self._store(state.replay, records)), metrics, records
-
-    def _store(self, replay: DeviceReplay, records: dict) -> DeviceReplay:
-        slot = replay.stored % replay.data["reward"].shape[0]
-        data = {k: v.at[slot].set(records[k]) for k, v in replay.data.items()}
-        return DeviceReplay(data, replay.stored + 1)
+        return state._replace(replay=store_episodes(state.replay, records)), metrics, records
 
     def pretrain(self, state: LoopState, updates: int) -> tuple[LoopState, dict]:
         """``updates`` updates in a row (the release's pretraining when prefill ends)."""
@@ -201,8 +194,9 @@ class DeviceProgram:
         state, metrics = jax.lax.scan(self._update, state._replace(key=keys[0]), keys[1:])
         return state, metrics
 
-    def evaluate(self, params: dict, key: jax.Array, episodes: int) -> dict:
-        """``episodes`` episodes in parallel with the actor's mode -> returns ``[episodes]``."""
+    def evaluate(self, agent_state, key: jax.Array, episodes: int) -> dict:
+        """``episodes`` episodes in parallel acting in ``eval`` mode -> returns ``[episodes]``."""
+        params = self.agent.acting_params(agent_state)
         reset_key, step_key = jax.random.split(key)
         envs, carry, _ = self._reset(episodes, reset_key)
         _, records = self._steps(params, jnp.asarray(False), "eval", (envs, carry),

@@ -20,18 +20,18 @@ import numpy as np
 
 from vsgjax.config import Config, ConfigError
 from vsgjax.data import checkpoint
-from vsgjax.envs.mjx import make_mjx_task
+from vsgjax.envs import make_device_task
 from vsgjax.loop.device_program import DeviceProgram, LoopState
 from vsgjax.loop.driver import (
     LoopDriver,
     check_seed_group,
     non_finite,
     open_runs,
-    release_runs,
     restore_seeds,
     saved_counters,
+    unlock_runs,
 )
-from vsgjax.loop.gate_logging import gate_summary, logs_gates, probe_key
+from vsgjax.loop.gate_logging import logs_gates, probe_key
 from vsgjax.loop.parallel import resolve_devices, seed_batched, seed_sharding, stack, take
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters
@@ -51,20 +51,18 @@ def jitted_programs(program: DeviceProgram, seeds: int, devices: int) -> tuple:
     episode = {training: jit(lambda state, training=training: program.episode(state, training))
                for training in (False, True)}
     pretrain = jit(lambda state: program.pretrain(state, train.pretrain))
-    evaluate = jit(lambda params, key: program.evaluate(params, key, train.eval_episodes))
+    evaluate = jit(lambda state, key: program.evaluate(state, key, train.eval_episodes))
     return episode, pretrain, evaluate
 
 
 class DeviceTrainer(LoopDriver):
-    """Train one or more seeds of an ``mjx_`` task with the compiled device program."""
+    """Train one or more seeds of a device task with the compiled device program."""
 
     def __init__(self, configs: list[Config], logdirs: list[Path], *, progress: bool = True,
                  out=print, restart: bool = False):
         check_seed_group(configs, logdirs)
         self.config, self.out = configs[0], out
-        env = self.config.env
-        task = make_mjx_task(env.task, env.action_repeat, env.time_limit)
-        self.program = DeviceProgram(self.config, task)
+        self.program = DeviceProgram(self.config, make_device_task(self.config.env))
         self.program.check()
         self.devices = resolve_devices(self.config)
         if len(configs) % self.devices:
@@ -78,7 +76,7 @@ class DeviceTrainer(LoopDriver):
             self.state, counters, self.resumed = self._restore()
             self.start(counters, progress=progress)
         except BaseException:
-            release_runs(self.runs)
+            unlock_runs(self.runs)
             raise
         self._update_replay_steps()
 
@@ -197,10 +195,10 @@ class DeviceTrainer(LoopDriver):
         """The train records, then each seed's ``gates/*`` line on a batch of its replay
         (:mod:`vsgjax.loop.gate_logging`)."""
         super().log()
-        if logs_gates(self.config) and self.schedule.training:
+        if logs_gates(self.program.agent) and self.schedule.training:
             for i, run in enumerate(self.runs):
-                summary = gate_summary(self.config, take(self.state.agent.params["wm"], i),
-                                       self.gate_batch(i))
+                summary = self.program.agent.gate_summary(take(self.state.agent, i),
+                                                          self.gate_batch(i))
                 run.logger.scalars(self.env_steps, summary)
 
     def gate_batch(self, index: int) -> dict:
@@ -218,7 +216,7 @@ class DeviceTrainer(LoopDriver):
         step, episodes = self.env_steps, self.config.train.eval_episodes
         keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(run.seed), step)
                           for run in self.runs])
-        results = jax.device_get(self._evaluate(self.state.agent.params, keys))
+        results = jax.device_get(self._evaluate(self.state.agent, keys))
         return [([{"return": float(r), "length": self.program.episode_steps}
                   for r in results["return"][i][:episodes]], None)
                 for i in range(len(self.runs))]

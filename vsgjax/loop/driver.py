@@ -19,7 +19,7 @@ from pathlib import Path
 
 from vsgjax.config import Config, ConfigError, to_dict
 from vsgjax.data import checkpoint
-from vsgjax.loop.evaluate import summarize
+from vsgjax.loop.evaluator import summarize
 from vsgjax.loop.logger import Progress
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters, Schedule
@@ -64,15 +64,15 @@ def open_runs(make_run: Callable[[Config, Path], RunWriter], configs: list[Confi
         for config, logdir in zip(configs, logdirs, strict=True):
             runs.append(make_run(config, logdir))
     except BaseException:
-        release_runs(runs)
+        unlock_runs(runs)
         raise
     return runs
 
 
-def release_runs(runs: list[RunWriter]) -> None:
+def unlock_runs(runs: list[RunWriter]) -> None:
     """Unlock the run directories of a trainer that failed to start."""
     for run in runs:
-        run.release()
+        run.unlock()
 
 
 Restore = Callable[[RunWriter, "int | None"], "checkpoint.Checkpoint | None"]

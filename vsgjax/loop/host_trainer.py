@@ -15,28 +15,30 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
+from vsgjax.agents import make_agent
+from vsgjax.agents.acting import acting_policy
+from vsgjax.agents.interface import Agent
 from vsgjax.config import Config, ConfigError
 from vsgjax.data import checkpoint
-from vsgjax.data.collect import Collector, EnvBatch, SeedEnvs, acting_policy, make_env_batch
+from vsgjax.data.collect import Collector, EnvBatch, SeedEnvs, make_env_batch
 from vsgjax.data.replay import Replay
-from vsgjax.keys import IMAGE_KEY
+from vsgjax.episode_keys import IMAGE_KEY
+from vsgjax.loop.checkpoints import checkpoint_tree, restore_latest
 from vsgjax.loop.driver import (
     LoopDriver,
     check_seed_group,
     group_label,
     non_finite,
     open_runs,
-    release_runs,
     restore_seeds,
     saved_counters,
+    unlock_runs,
 )
-from vsgjax.loop.evaluate import Evaluator, checkpoint_tree, restore_latest
-from vsgjax.loop.gate_logging import gate_summary, logs_gates
+from vsgjax.loop.evaluator import Evaluator
+from vsgjax.loop.gate_logging import logs_gates
 from vsgjax.loop.parallel import Parallel, mesh_shape, resolve_devices, split_keys, stack, take
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters, env_seed
-from vsgjax.loop.videos import has_video, open_loop_video
-from vsgjax.model.agent import Agent
 
 MakeEnvs = Callable[..., EnvBatch]  # (env_cfg, seed, num_envs, *, eval) -> EnvBatch
 # Shown on the progress bar after every update: the world-model loss and the per-pixel image
@@ -49,8 +51,7 @@ class SeedRun(RunWriter):
 
     def __init__(self, config: Config, logdir: Path, *, restart: bool = False):
         super().__init__(config, logdir, restart=restart)
-        train = config.train
-        self.replay = Replay(train.replay_capacity, train.length, train.seed, train.oversample_ends)
+        self._replay_rng = config.train.seed  # the restored stream when the run resumes
 
     @property
     def replay_steps(self) -> int:
@@ -58,10 +59,14 @@ class SeedRun(RunWriter):
 
     def load(self, restored: checkpoint.Checkpoint) -> None:
         super().load(restored)
-        self.replay.rng = checkpoint.rng_from_state(restored.meta["replay_rng"])
+        self._replay_rng = checkpoint.rng_from_state(restored.meta["replay_rng"])
 
     def open(self, agent: Agent, eval_envs: EnvBatch) -> None:
-        """Reload the replay from episodes/ and open the evaluator."""
+        """Make the replay the agent samples from, reload it from episodes/ and open the
+        evaluator."""
+        train, needs = self.config.train, agent.replay
+        self.replay = Replay(train.replay_capacity, needs.length, self._replay_rng,
+                             train.oversample_ends, history=needs.history)
         # Episodes on disk are data even without a checkpoint (a run killed before its first).
         for episode in self.store.load(limit_steps=self.config.train.replay_capacity):
             self.replay.add_episode(episode)
@@ -99,7 +104,7 @@ class HostTrainer(LoopDriver):
         try:
             self._set_up(configs, make_envs, progress)
         except BaseException:
-            release_runs(self.runs)
+            unlock_runs(self.runs)
             raise
 
     def _set_up(self, configs: list[Config], make_envs: MakeEnvs, progress: bool) -> None:
@@ -107,7 +112,7 @@ class HostTrainer(LoopDriver):
         train, env = self.config.train, self.config.env
         eval_envs = [make_envs(c.env, c.train.seed, env.eval_envs, eval=True) for c in configs]
         spec = eval_envs[0].spec
-        self.agent = Agent(self.config, spec.obs, spec.action_dim, spec.discrete)
+        self.agent = make_agent(self.config, spec)
         self._said_no_videos = False
 
         def restore(run: SeedRun, max_step: int | None):
@@ -134,7 +139,8 @@ class HostTrainer(LoopDriver):
         envs = SeedEnvs([make_envs(run.config.env, env_seed(run.seed, self.counters.agent_steps),
                                    env.num_envs, eval=False) for run in self.runs])
         chunk = max(1, train.train_every // env.num_envs)
-        self.collector = Collector(envs, jax.vmap(acting_policy(self.agent, spec, "train")),
+        self._acting_params = jax.jit(jax.vmap(self.agent.acting_params))
+        self.collector = Collector(envs, jax.vmap(acting_policy(self.agent, "train")),
                                    chunk=chunk, on_episode=self._on_episode)
         self.carry = stack([self.agent.initial_carry(env.num_envs)] * len(self.runs))
         self.last_batch: dict | None = None  # the latest update's batch [S, B, T, ...]
@@ -180,7 +186,7 @@ class HostTrainer(LoopDriver):
         explore = jnp.full((len(self.runs),), self.prefilling)
         # counted first, so episodes finishing in this chunk are logged at its end step
         self.counters.agent_steps += self.collector.chunk * self.collector.envs.num_envs
-        self.carry, _ = self.collector.run((self.state.params, explore), self.carry,
+        self.carry, _ = self.collector.run((self._acting_params(self.state), explore), self.carry,
                                            self._next_keys())
         self.progress.update(self.env_steps)
 
@@ -249,10 +255,9 @@ class HostTrainer(LoopDriver):
         """The train records, then each seed's ``gates/*`` line on its latest training batch
         (:mod:`vsgjax.loop.gate_logging`)."""
         super().log()
-        if logs_gates(self.config) and self.last_batch is not None:
+        if logs_gates(self.agent) and self.last_batch is not None:
             for i, run in enumerate(self.runs):
-                summary = gate_summary(self.config, take(self.state.params["wm"], i),
-                                       take(self.last_batch, i))
+                summary = self.agent.gate_summary(take(self.state, i), take(self.last_batch, i))
                 run.logger.scalars(self.env_steps, summary)
 
     def report_log(self, records: list[dict], shared: dict) -> None:
@@ -271,18 +276,19 @@ class HostTrainer(LoopDriver):
 
     def eval_episodes(self) -> list[tuple[list[dict], dict]]:
         """``train.eval_episodes`` episodes of each seed's actor mode in its eval envs."""
-        keys = self._next_keys()
+        keys, params = self._next_keys(), self._acting_params(self.state)
         results = []
         for i, run in enumerate(self.runs):
-            infos, episodes = run.evaluator.run(take(self.state.params, i),
+            infos, episodes = run.evaluator.run(take(params, i),
                                                 self.config.train.eval_episodes, keys[i])
             results.append((infos, episodes[0]))
         return results
 
     def videos(self, step: int, recorded: list[dict]) -> None:
-        """Each seed's eval and open-loop videos of its first eval episode; for observations
-        without images, a note (once per process) instead."""
-        if not has_video(recorded[0]):
+        """Each seed's eval video of its first eval episode, and its open-loop video when the
+        agent has a world model; for observations without images, a note (once per process)
+        instead."""
+        if IMAGE_KEY not in recorded[0]:
             if not self._said_no_videos:
                 self.progress.write(f"no videos: the observations of {self.config.env.task} "
                                     f"have no image (keys {', '.join(self.agent.obs_shape.keys)})")
@@ -291,8 +297,8 @@ class HostTrainer(LoopDriver):
         keys = self._next_keys()
         for i, (run, episode) in enumerate(zip(self.runs, recorded, strict=True)):
             run.logger.video("eval", step, episode[IMAGE_KEY])
-            frames = open_loop_video(self.config, take(self.state.params["wm"], i), episode,
-                                     keys[i])
+            open_loop = getattr(self.agent, "open_loop_video", None)
+            frames = open_loop and open_loop(take(self.state, i), episode, keys[i])
             if frames is not None:
                 run.logger.video("open_loop", step, frames, fps=10)
 

@@ -26,8 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from vsgjax.agents.interface import Agent
 from vsgjax.config import Config, ConfigError
-from vsgjax.model.agent import Agent
 
 ACCELERATORS = ("gpu", "tpu")
 

@@ -39,6 +39,7 @@ from vsgjax.loop.rundir_guard import (
 )
 from vsgjax.loop.schedule import Counters
 from vsgjax.outdir import make_output_dir
+from vsgjax.registry.agents import agent_entry
 
 CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
@@ -49,9 +50,6 @@ EPISODES_DIR = "episodes"
 VIDEOS_DIR = "videos"
 KEEP_CHECKPOINTS = 3
 # the ``method`` of scores.jsonl: the names of the paper's curves
-METHOD_NAMES = {"dreamerv1": "DreamerV1", "dreamerv2": "DreamerV2", "vsg": "VSG",
-                "svsg": "SVSG", "ssm": "SSM"}
-
 
 def json_safe(record: dict) -> dict:
     """NaN/inf (e.g. 'never visited' discovery metrics) become null in JSON files."""
@@ -140,7 +138,7 @@ class RunWriter(RunDir):
             set_aside_corrupt(self.logdir, self.ckpt_dir)
             remove_interrupted_writes(self.logdir, self.ckpt_dir, self.episodes_dir)
         except BaseException:
-            self.lock.release()
+            self.lock.unlock()
             raise
         self.store = EpisodeStore(self.episodes_dir)
         self.logger: Logger | None = None  # opened by open_logs
@@ -185,7 +183,8 @@ class RunWriter(RunDir):
         self.write_scores()
 
     def write_scores(self) -> None:
-        record = {"task": self.config.env.task, "method": METHOD_NAMES[self.config.model.name],
+        method = agent_entry(self.config.model.name).display
+        record = {"task": self.config.env.task, "method": method,
                   "seed": str(self.seed), **self.scores}
         checkpoint.atomic_write(self.path(SCORES_FILE), (json.dumps(record) + "\n").encode())
 
@@ -232,11 +231,11 @@ class RunWriter(RunDir):
         last = checkpoint.latest(self.ckpt_dir)
         return f"the last good checkpoint is {last}" if last else "no checkpoint was saved yet"
 
-    def release(self) -> None:
+    def unlock(self) -> None:
         """Unlock the directory (another process may train into it)."""
-        self.lock.release()
+        self.lock.unlock()
 
     def close(self) -> None:
         if self.logger is not None:
             self.logger.close()
-        self.release()
+        self.unlock()

@@ -67,7 +67,7 @@ class RunLock:
         self._file.write(f"{os.getpid()}\n")
         self._file.flush()
 
-    def release(self) -> None:
+    def unlock(self) -> None:
         self._file.close()
 
 

@@ -1,4 +1,4 @@
-"""The agent (vsgjax.model.agent): the joint jitted update and acting, at debug size.
+"""The agent (vsgjax.agents.dreamer.agent): the joint jitted update and acting, at debug size.
 
 Each model's train_step compiles once (cached in ``_updates``) and serves every test of it.
 By default VSG (continuous, dynamics backprop) and DreamerV2 (discrete, REINFORCE) run; the
@@ -12,17 +12,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.config import make_config
-from vsgjax.model.agent import Agent
 
 BATCH, LENGTH, UPDATES, SLOW_EVERY = 2, 3, 3, 2
 slow = pytest.mark.slow
 
 
-def make_agent(model: str, discrete: bool, alignment: str = "release", *overrides) -> Agent:
+def make_agent(model: str, discrete: bool, alignment: str = "release", *overrides) -> DreamerAgent:
     config = make_config("bbs_basic", model, "debug", [f"ac.slow_critic_every={SLOW_EVERY}",
                                                         f"ac.alignment={alignment}", *overrides])
-    return Agent(config, (64, 64, 3), 3 if discrete else 2, discrete)
+    return DreamerAgent(config, (64, 64, 3), 3 if discrete else 2, discrete)
 
 
 def make_batch(action_dim: int, discrete: bool, seed: int = 0) -> dict:

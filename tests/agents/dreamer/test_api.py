@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import vsgjax
+from vsgjax.agents.dreamer import api
+from vsgjax.agents.dreamer.dynamics import make_dynamics
 from vsgjax.config import make_config
-from vsgjax.model import api
-from vsgjax.model.dynamics import make_dynamics
 
 CONFIG = make_config("bbs_basic", "vsg", "debug", ["wm.lr=1e-3"])
 DYNAMICS = make_dynamics(CONFIG.model)
@@ -35,7 +35,7 @@ def trained():
     state = api.init(CONFIG, jax.random.PRNGKey(0))
     states, history = [state], []
     for step in range(8):
-        state, metrics, posts = api.train_step(CONFIG, state, batch, jax.random.PRNGKey(step))
+        state, metrics, posts = api.world_model_step(CONFIG, state, batch, jax.random.PRNGKey(step))
         states.append(state)
         history.append(metrics)
     return batch, states, history, posts
@@ -60,7 +60,7 @@ def test_train_step_reduces_the_loss_on_a_fixed_batch(trained):
 
 def test_train_step_is_deterministic_given_the_key(trained):
     batch, states, history, posts = trained
-    again, metrics, again_posts = api.train_step(CONFIG, states[-2], batch, jax.random.PRNGKey(7))
+    again, metrics, again_posts = api.world_model_step(CONFIG, states[-2], batch, jax.random.PRNGKey(7))
     jax.tree.map(np.testing.assert_array_equal, again.params, states[-1].params)
     jax.tree.map(np.testing.assert_array_equal, metrics, history[-1])
     jax.tree.map(np.testing.assert_array_equal, again_posts, posts)

@@ -1,7 +1,7 @@
-"""Behaviour learning (vsgjax.model.behaviour): λ-returns, weights, slow critic, gradients.
+"""Behaviour learning (vsgjax.agents.dreamer.behaviour): λ-returns, weights, slow critic, gradients.
 
 The world model is replaced by a tiny differentiable toy (feature = state vector) so every test
-compiles in seconds; tests/model/test_agent.py runs the real models.
+compiles in seconds; tests/agents/dreamer/test_agent.py runs the real models.
 """
 
 import functools
@@ -11,8 +11,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vsgjax.agents.dreamer import behaviour as bhv
 from vsgjax.config import BehaviourConfig
-from vsgjax.model import behaviour as bhv
 
 FEAT, ACTIONS, HORIZON, GAMMA = 3, 2, 4, 0.9
 

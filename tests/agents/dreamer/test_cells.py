@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vsgjax.model.cells import (
+from vsgjax.agents.dreamer.cells import (
     cell_init,
     dense,
     gated_update,

@@ -8,9 +8,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vsgjax.config import MODELS, make_config
-from vsgjax.model.distributions import Categorical, Gaussian, LatentSpace
-from vsgjax.model.dynamics import GatedRSSMState, RSSMState, SSMState, SVSGState, make_dynamics
+from vsgjax.agents.dreamer.distributions import Categorical, Gaussian, LatentSpace
+from vsgjax.agents.dreamer.dynamics import (
+    GatedRSSMState,
+    RSSMState,
+    SSMState,
+    SVSGState,
+    make_dynamics,
+)
+from vsgjax.config import make_config
+from vsgjax.registry.agents import dreamer_models
 
 B, T, E, A, H = 3, 6, 10, 2, 4
 STATE_TYPES = {
@@ -79,7 +86,7 @@ def _setup(name):
     return Setup(name)
 
 
-@pytest.fixture(scope="module", params=MODELS)
+@pytest.fixture(scope="module", params=dreamer_models())
 def setup(request):
     return _setup(request.param)
 

@@ -1,4 +1,5 @@
-"""Gate statistics (:mod:`vsgjax.model.gate_statistics`) on the real VSG and SVSG world models.
+"""Gate statistics (:mod:`vsgjax.agents.dreamer.gate_statistics`) on the real VSG and SVSG
+world models.
 
 The sparsity loss alpha*KL(g || Bern(kappa)) must move the gates toward kappa within a bounded
 number of world-model updates on fixed episodes. With ``VSGJAX_BREAK_GATE_LOSS=1`` the gate
@@ -16,14 +17,14 @@ import numpy as np
 import pytest
 
 import vsgjax
-from vsgjax.config import make_config
-from vsgjax.model import gates
-from vsgjax.model.gate_statistics import (
+from vsgjax.agents.dreamer import gates
+from vsgjax.agents.dreamer.gate_statistics import (
     GateStatistics,
     closed_run_lengths,
     gate_statistics,
 )
-from vsgjax.model.world_model import WorldModel
+from vsgjax.agents.dreamer.world_model import WorldModel
+from vsgjax.config import make_config
 
 BREAK_GATE_LOSS = os.environ.get("VSGJAX_BREAK_GATE_LOSS") == "1"
 OBS = {"vector": (8,)}  # the dynamics and gates are those of any task; a vector keeps it fast
@@ -73,7 +74,7 @@ def trained(gate_loss_on):
         state = vsgjax.init(cfg, jax.random.PRNGKey(0), obs_shape=OBS, action_dim=2)
         before = gate_statistics(state.params, batch, config=cfg)
         for i in range(UPDATES):
-            state, _, _ = vsgjax.train_step(cfg, state, batch, jax.random.PRNGKey(i))
+            state, _, _ = vsgjax.world_model_step(cfg, state, batch, jax.random.PRNGKey(i))
         out[alpha, kappa] = before, gate_statistics(state.params, batch, config=cfg)
     return out
 

@@ -6,8 +6,8 @@ import numpy as np
 import optax
 import pytest
 
-from vsgjax.model.cells import cell_init, dense, dense_init, sparse_gru_cell
-from vsgjax.model.gates import bernoulli_kl, gate_statistics, mean_gate_kl, sparsity_loss
+from vsgjax.agents.dreamer.cells import cell_init, dense, dense_init, sparse_gru_cell
+from vsgjax.agents.dreamer.gates import bernoulli_kl, gate_metrics, mean_gate_kl, sparsity_loss
 
 
 def _closed_form_kl(p, kappa):
@@ -55,14 +55,14 @@ def test_kappa_outside_unit_interval_is_an_error():
         bernoulli_kl(jnp.zeros(3), 1.5)
 
 
-def test_gate_statistics_on_hand_made_gates():
+def test_gate_metrics_on_hand_made_gates():
     # B=2, T=3, D=4
     gate = jnp.array([
         [[1, 0, 0, 0], [1, 1, 0, 0], [1, 1, 1, 0]],
         [[0, 0, 0, 0], [0, 0, 0, 1], [1, 1, 1, 1]],
     ], jnp.float32)
     prob = jnp.full(gate.shape, 0.25).at[1].set(0.75)
-    stats = gate_statistics(gate, prob)
+    stats = gate_metrics(gate, prob)
     per_step = np.array([1, 2, 3, 0, 1, 4])
     per_unit = np.array([3, 2, 1, 0, 1, 1, 1, 2])
     np.testing.assert_allclose(stats["gate_units_per_step_mean"], per_step.mean())
@@ -72,14 +72,14 @@ def test_gate_statistics_on_hand_made_gates():
     np.testing.assert_allclose(stats["gate_open_fraction"], 11 / 24)
     np.testing.assert_allclose(stats["gate_prob_mean"], 0.5)
     # a single [T, D] sequence gives the statistics of its batch slice
-    single = gate_statistics(gate[0], prob[0])
+    single = gate_metrics(gate[0], prob[0])
     np.testing.assert_allclose(single["gate_units_per_step_mean"], 2.0)
     np.testing.assert_allclose(single["gate_updates_per_unit_std"], np.std([3, 2, 1, 0]), rtol=1e-6)
 
 
-def test_gate_statistics_rejects_bad_shapes():
+def test_gate_metrics_rejects_bad_shapes():
     with pytest.raises(ValueError, match=r"\[T, D\] or \[B, T, D\].*\(4,\)"):
-        gate_statistics(jnp.zeros(4), jnp.zeros(4))
+        gate_metrics(jnp.zeros(4), jnp.zeros(4))
 
 
 # --- a short training run -----------------------------------------------------------------------

@@ -4,8 +4,9 @@ import subprocess
 import sys
 
 ENV_LIBRARIES = ("gymnasium", "pymunk", "dm_control", "mujoco", "ale_py", "bbs", "mcap")
-MODEL_MODULES = ("vsgjax.model.cells", "vsgjax.model.dynamics", "vsgjax.model.world_model",
-                 "vsgjax.model.behaviour", "vsgjax.model.agent", "vsgjax.model.api", "vsgjax")
+MODEL_MODULES = ("vsgjax.agents.dreamer.cells", "vsgjax.agents.dreamer.dynamics",
+                 "vsgjax.agents.dreamer.world_model", "vsgjax.agents.dreamer.behaviour",
+                 "vsgjax.agents.dreamer.agent", "vsgjax.agents.dreamer.api", "vsgjax")
 
 
 def test_model_code_imports_no_environment_library():

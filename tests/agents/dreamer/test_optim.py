@@ -1,4 +1,5 @@
-"""The optimizers (vsgjax.model.optim): TF's Adam epsilon, the release's weight decay, AdamW,
+"""The optimizers (vsgjax.agents.dreamer.optim): TF's Adam epsilon, the release's weight decay,
+AdamW,
 clipping."""
 
 import jax
@@ -7,8 +8,8 @@ import numpy as np
 import optax
 import pytest
 
+from vsgjax.agents.dreamer.optim import agent_optimizers, make_optimizer, scale_by_tf_adam
 from vsgjax.config import OptimConfig, make_config
-from vsgjax.model.optim import agent_optimizers, make_optimizer, scale_by_tf_adam
 
 PARAMS = {"kernel": jnp.array([[1.1, -2.3], [0.7, 3.9]], jnp.float32),
           "bias": jnp.array([0.3, -0.05], jnp.float32)}

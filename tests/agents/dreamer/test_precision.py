@@ -1,4 +1,5 @@
-"""Mixed precision (``model.precision``, vsgjax/precision.py) on the real models at debug size.
+"""Mixed precision (``model.precision``, vsgjax/agents/precision.py) on the real models at debug
+size.
 
 float32 must be the computation of before: its numbers are checked against values computed
 by the code before precision existed (``REFERENCE``: bit for bit on the CPU that recorded them,
@@ -19,10 +20,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tests.model.test_agent import make_batch
+from tests.agents.dreamer.test_agent import make_batch
+from vsgjax.agents.dreamer.agent import DreamerAgent
+from vsgjax.agents.precision import compute_dtype, matmul
 from vsgjax.config import ConfigError, make_config
-from vsgjax.model.agent import Agent
-from vsgjax.model.precision import compute_dtype, matmul
 
 MODELS = ("dreamerv1", "dreamerv2", "vsg", "svsg", "ssm")
 slow = pytest.mark.slow
@@ -86,10 +87,10 @@ TERM_TOLERANCE = {"wm/image_loss": (5e-3, 0.0), "wm/reward_loss": (5e-3, 0.0),
 BF16_DOT = re.compile(r"stablehlo\.dot_general.*\(tensor<[^>]*xbf16>, tensor<[^>]*xbf16>\)")
 
 
-def make_agent(model: str, precision: str) -> Agent:
+def make_agent(model: str, precision: str) -> DreamerAgent:
     config = make_config("bbs_basic", model, "debug", [f"model.precision={precision}"])
     discrete = model == "dreamerv2"
-    return Agent(config, (64, 64, 3), 3 if discrete else 2, discrete)
+    return DreamerAgent(config, (64, 64, 3), 3 if discrete else 2, discrete)
 
 
 @functools.cache

@@ -5,11 +5,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from vsgjax.agents.dreamer import api
+from vsgjax.agents.dreamer.agent import DreamerAgent
+from vsgjax.agents.dreamer.world_model import WorldModel, obs_spec_of
 from vsgjax.config import ConfigError, make_config
-from vsgjax.model import api
-from vsgjax.model.agent import Agent
-from vsgjax.model.observations import ObsSpec, obs_spec
-from vsgjax.model.world_model import WorldModel, obs_spec_of
+from vsgjax.observations import ObsSpec, obs_spec
 
 TASK = "dmc_walker_walk"
 VECTOR = {"vector": (24,)}
@@ -112,7 +112,7 @@ def test_params_name_their_spec_and_an_image_shape_is_the_image_spec():
 
 @pytest.mark.parametrize("model", ["vsg", "svsg"])
 def test_agent_trains_on_vector_observations(model):
-    agent = Agent(config(model), VECTOR, 6, False)
+    agent = DreamerAgent(config(model), VECTOR, 6, False)
     state = agent.init(jax.random.PRNGKey(0))
     wm = state.params["wm"]
     assert "decoder" not in wm and "encoder" not in wm and "mlp_decoder" in wm
@@ -127,7 +127,7 @@ def test_mixed_observations_train_both_decoders():
     cfg = config()
     state = api.init(cfg, jax.random.PRNGKey(0), obs_shape=MIXED, action_dim=6)
     batch = random_batch(obs_spec(MIXED))
-    new, metrics, posts = api.train_step(cfg, state, batch, jax.random.PRNGKey(1))
+    new, metrics, posts = api.world_model_step(cfg, state, batch, jax.random.PRNGKey(1))
     assert {"image_mse", "vector_mse", "image_loss", "vector_loss"} <= set(metrics)
     parts = sum(metrics[k] for k in ("image_loss", "vector_loss", "reward_loss", "kl_loss",
                                      "gate_loss"))
@@ -143,7 +143,7 @@ def test_mixed_observations_train_both_decoders():
 
 
 def test_policy_step_on_vector_observations():
-    agent = Agent(config(), VECTOR, 6, False)
+    agent = DreamerAgent(config(), VECTOR, 6, False)
     params = agent.init(jax.random.PRNGKey(0)).params
     obs = {"vector": jnp.ones((3, 24)), "is_first": jnp.ones(3, bool)}
     carry, action = agent.policy_step(params, agent.initial_carry(3), obs, jax.random.PRNGKey(1))

@@ -7,10 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vsgjax.config import MODELS, make_config
-from vsgjax.model.distributions import Categorical, Gaussian
-from vsgjax.model.dynamics import RSSMState, SVSGState, make_dynamics
-from vsgjax.model.networks import (
+from vsgjax.agents.dreamer.distributions import Categorical, Gaussian
+from vsgjax.agents.dreamer.dynamics import RSSMState, SVSGState, make_dynamics
+from vsgjax.agents.dreamer.networks import (
     MLP,
     ConvDecoder,
     ConvEncoder,
@@ -22,7 +21,9 @@ from vsgjax.model.networks import (
     image_to_float,
     normal_log_prob,
 )
-from vsgjax.model.world_model import WorldModel, balanced_kl_loss, image_mse, per_step_kl
+from vsgjax.agents.dreamer.world_model import WorldModel, balanced_kl_loss, image_mse, per_step_kl
+from vsgjax.config import make_config
+from vsgjax.registry.agents import dreamer_models
 
 
 def random_batch(seed: int, batch: int, length: int, obs_shape=(64, 64, 3), action_dim: int = 2):
@@ -247,7 +248,7 @@ def test_episode_start_resets_the_state(vsg):
     np.testing.assert_allclose(a.deter[3:], b.deter[3:], rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("name", [m for m in MODELS if m != "vsg"])
+@pytest.mark.parametrize("name", [m for m in dreamer_models() if m != "vsg"])
 def test_loss_finite_for_every_model_at_debug_size(name):
     model = WorldModel(make_config("bbs_basic", name, "debug"))
     params = jax.jit(model.init)(jax.random.PRNGKey(0))

@@ -1,15 +1,17 @@
-"""The agent: one jitted update of world model, actor and critic, and jitted acting.
+"""The Dreamer-family agent (DreamerV1, DreamerV2, VSG, SVSG, SSM): one jitted update of world
+model, actor and critic, and jitted acting; it implements :mod:`vsgjax.agents.interface`.
 
-    agent = Agent(config, obs_shape=(64, 64, 3), action_dim=2, discrete=False)
-    # or obs_shape={"vector": (24,)} (an ObsSpec or {key: shape}; see vsgjax.model.observations)
+    agent = DreamerAgent(config, obs_shape=(64, 64, 3), action_dim=2, discrete=False)
+    # or obs_shape={"vector": (24,)} (an ObsSpec or {key: shape}; see vsgjax.observations)
     state = agent.init(key)                                   # AgentState pytree
     state, metrics = agent.train_step(state, batch, key)      # batch: the [B, T] sequence dict
     carry = agent.initial_carry(num_envs)
-    carry, action = agent.policy_step(state.params, carry, obs, key, mode="train")
+    carry, action = agent.policy_step(agent.acting_params(state), carry, obs, key, mode="train")
 
-``Agent`` is a frozen dataclass of hashable fields, so its methods are jitted with ``self`` as a
+``DreamerAgent`` is a frozen dataclass of hashable fields, so its methods are jitted with
+``self`` as a
 static argument: equal agents share compiled code. Behaviour learning is in
-:mod:`vsgjax.model.behaviour` (with the timestep-alignment diagram).
+:mod:`vsgjax.agents.dreamer.behaviour` (with the timestep-alignment diagram).
 """
 
 from __future__ import annotations
@@ -23,13 +25,14 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from vsgjax.agents.dreamer import behaviour as bhv
+from vsgjax.agents.dreamer.gate_statistics import gate_statistics
+from vsgjax.agents.dreamer.open_loop import open_loop_video
+from vsgjax.agents.dreamer.optim import agent_optimizers
+from vsgjax.agents.dreamer.world_model import WorldModel
+from vsgjax.agents.interface import ReplayNeeds, check_mode
 from vsgjax.config import Config
-from vsgjax.model import behaviour as bhv
-from vsgjax.model.observations import ObsSpec, obs_spec
-from vsgjax.model.optim import agent_optimizers
-from vsgjax.model.world_model import WorldModel
-
-POLICY_MODES = ("train", "eval")
+from vsgjax.observations import ObsSpec, obs_spec
 
 
 class AgentState(NamedTuple):
@@ -48,11 +51,11 @@ Carry = tuple[Any, jax.Array]  # (posterior states [N, ...], previous actions [N
 
 
 @dataclass(frozen=True)
-class Agent:
+class DreamerAgent:
     """World model + imagination actor-critic for one observation spec and action space.
 
     ``obs_shape``: an image shape ``(64, 64, C)``, a ``{key: shape}`` dict or an
-    :class:`~vsgjax.model.observations.ObsSpec`; stored as the ObsSpec.
+    :class:`~vsgjax.observations.ObsSpec`; stored as the ObsSpec.
     """
 
     config: Config
@@ -62,6 +65,15 @@ class Agent:
 
     def __post_init__(self):
         object.__setattr__(self, "obs_shape", obs_spec(self.obs_shape))
+
+    @property
+    def replay(self) -> ReplayNeeds:
+        """Sequences of ``train.length`` steps."""
+        return ReplayNeeds(self.config.train.length)
+
+    def acting_params(self, state: AgentState) -> dict:
+        """Acting reads every network (the encoder and dynamics for the posterior, the actor)."""
+        return state.params
 
     @functools.cached_property
     def world_model(self) -> WorldModel:
@@ -107,7 +119,8 @@ class Agent:
         """One update of world model, then actor, then critic, with the slow-critic schedule.
 
         The world model trains on ``batch``; its posterior states (stop-gradient; see
-        :func:`vsgjax.model.behaviour.start_states` for which; ``ac.starts`` of them when it is
+        :func:`vsgjax.agents.dreamer.behaviour.start_states` for which; ``ac.starts`` of them
+        when it is
         not 0) start the imagination, which uses the freshly updated world model. The slow
         critic is copied from the critic at the start of the update (``ac.alignment=release``)
         or after it (``next_state``). Returns ``(state, metrics)`` with keys ``wm/*``,
@@ -153,6 +166,22 @@ class Agent:
                       "slow_critic": slow_critic}
         return AgentState(new_params, opt, state.step + 1), metrics
 
+    # --- analysis ------------------------------------------------------------------------------
+
+    @property
+    def gated(self) -> bool:
+        """Whether the latent states carry update gates (VSG, SVSG)."""
+        return self.world_model.dynamics.gated
+
+    def gate_summary(self, state: AgentState, batch: dict) -> dict[str, float]:
+        """The ``gates/*`` scalars of the state's world model on a ``[B, T]`` batch."""
+        return gate_statistics(state.params["wm"], batch, config=self.config).summary()
+
+    def open_loop_video(self, state: AgentState, episode: dict, key: jax.Array):
+        """The run's open-loop prediction video of an episode (uint8 frames), or None for an
+        episode without images (:mod:`vsgjax.agents.dreamer.open_loop`)."""
+        return open_loop_video(self.config, state.params["wm"], episode, key)
+
     # --- acting --------------------------------------------------------------------------------
 
     def initial_carry(self, num_envs: int) -> Carry:
@@ -174,8 +203,7 @@ class Agent:
         float32 [N, A]: in [-1, 1] when continuous, one-hot when discrete. Returns
         ``((posts, action), action)``.
         """
-        if mode not in POLICY_MODES:
-            raise ValueError(f"unknown policy mode {mode!r}; valid: {', '.join(POLICY_MODES)}")
+        check_mode(mode)
         dyn, states, prev_actions = self.world_model.dynamics, *carry
         state_key, action_key = jax.random.split(key)
         embeds = self.world_model.encode(params["wm"], obs)

@@ -1,10 +1,11 @@
-"""Public functional API: ``init``, a jitted world-model ``train_step``, ``observe``, ``imagine``.
+"""Public functional API: ``init``, a jitted ``world_model_step`` (the world model alone),
+``observe``, ``imagine``.
 
 Everything is a pure function of explicit params, state and PRNG keys; the config is a static
 (hashable) argument. ``imagine`` accepts start states with any leading batch dimensions::
 
     state = init(config, key, obs_shape=(64, 64, 3), action_dim=2)   # or {"vector": (24,)}
-    state, metrics, posts = train_step(config, state, batch, key)
+    state, metrics, posts = world_model_step(config, state, batch, key)
     last = jax.tree.map(lambda x: x[:, -1], posts)           # [B] posterior states
     out = imagine(state.params, last, 15, config=config, key=key, action_dim=2)
     out["images"]                                             # [B, 15, 64, 64, 3] uint8
@@ -27,12 +28,12 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from vsgjax.agents.dreamer.behaviour import Behaviour
+from vsgjax.agents.dreamer.networks import float_to_image
+from vsgjax.agents.dreamer.optim import world_model_optimizer
+from vsgjax.agents.dreamer.world_model import WorldModel, obs_spec_of
 from vsgjax.config import Config
-from vsgjax.model.behaviour import Behaviour
-from vsgjax.model.networks import float_to_image
-from vsgjax.model.observations import ObsSpec
-from vsgjax.model.optim import world_model_optimizer
-from vsgjax.model.world_model import WorldModel, obs_spec_of
+from vsgjax.observations import ObsSpec
 
 
 class TrainState(NamedTuple):
@@ -45,7 +46,7 @@ class TrainState(NamedTuple):
 
 def world_model_for(config: Config, params: dict, action_dim: int = 0) -> WorldModel:
     """The :class:`WorldModel` matching ``params`` (its observation spec read from the
-    decoders: :func:`vsgjax.model.world_model.obs_spec_of`)."""
+    decoders: :func:`vsgjax.agents.dreamer.world_model.obs_spec_of`)."""
     return WorldModel(config, obs_spec_of(params), action_dim)
 
 
@@ -67,7 +68,7 @@ def _init(model: WorldModel, key: jax.Array) -> TrainState:
 
 
 @functools.partial(jax.jit, static_argnames="config")
-def train_step(config: Config, state: TrainState, batch: dict, key: jax.Array):
+def world_model_step(config: Config, state: TrainState, batch: dict, key: jax.Array):
     """One world-model update on a [B, T] batch -> ``(state, metrics, posts)``.
 
     The batch holds the observation keys the params were built for (``image`` [B, T, 64, 64,

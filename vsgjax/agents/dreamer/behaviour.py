@@ -16,9 +16,9 @@ import jax
 import jax.numpy as jnp
 from jax.scipy.special import ndtri
 
+from vsgjax.agents.dreamer.networks import MLP, normal_log_prob
+from vsgjax.agents.precision import compute_dtype
 from vsgjax.config import ACTOR_GRADS, ALIGNMENTS, BehaviourConfig, Config
-from vsgjax.model.networks import MLP, normal_log_prob
-from vsgjax.model.precision import compute_dtype
 
 sg = jax.lax.stop_gradient
 
@@ -123,7 +123,7 @@ class Behaviour:
 
     ``units`` is the width of the hidden layers (the config's ``wm.mlp_units``: the paper uses
     400 for every MLP). ``precision`` (the config's ``model.precision``) is the compute dtype of
-    the actor's and critic's matmuls (:mod:`vsgjax.model.precision`); their outputs, the action
+    the actor's and critic's matmuls (:mod:`vsgjax.agents.precision`); their outputs, the action
     distributions, returns and losses are float32.
     """
 

@@ -11,8 +11,9 @@ update ``u``::
           h = g ⊙ ĉ + (1 - g) ⊙ h_prev  (a closed gate copies h_prev bit for bit)
 
 Parameters are plain dicts built by the ``*_init`` functions; the small dense / LayerNorm
-helpers here are also the building blocks of :mod:`vsgjax.model.dynamics`. ``dtype`` arguments are
-the compute dtype of the dense layer's matmul (:mod:`vsgjax.model.precision`); everything else, the
+helpers here are also the building blocks of :mod:`vsgjax.agents.dreamer.dynamics`. ``dtype``
+arguments are
+the compute dtype of the dense layer's matmul (:mod:`vsgjax.agents.precision`); everything else, the
 gate sample included, is float32.
 """
 
@@ -23,7 +24,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from vsgjax.model.precision import matmul
+from vsgjax.agents.precision import matmul
 
 GATE_MODES = ("sample", "threshold")
 LAYER_NORM_EPS = 1e-3  # tf.keras LayerNormalization default, as in the released code

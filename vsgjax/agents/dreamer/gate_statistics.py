@@ -30,12 +30,12 @@ from collections.abc import Mapping
 import jax
 import jax.numpy as jnp
 
+from vsgjax.agents.dreamer.api import DEFAULT_SEED, TrainedParams, world_model_for
+from vsgjax.agents.dreamer.gates import bernoulli_kl
+from vsgjax.agents.interface import AgentParams
+from vsgjax.agents.dreamer.world_model import WorldModel, obs_spec_of
 from vsgjax.config import Config
-from vsgjax.model.api import DEFAULT_SEED, TrainedParams, world_model_for
-from vsgjax.model.gates import bernoulli_kl
-from vsgjax.model.world_model import WorldModel, obs_spec_of
-
-GATED_MODELS = ("vsg", "svsg")
+from vsgjax.registry.agents import agent_entry, gated_models
 
 
 @functools.partial(jax.tree_util.register_dataclass,
@@ -107,7 +107,7 @@ class GateStatistics:
             "gates/closed_run_mean": jnp.where(
                 runs > 0, (lengths * self.closed_runs).sum() / jnp.maximum(runs, 1), 0.0),
         }
-        if self.model == "svsg":
+        if agent_entry(self.model).option("dynamics") == "SVSG":  # the gates update the state
             out["gates/stoch_updated"] = self.open_per_step.mean()
         return {key: float(value) for key, value in out.items()}
 
@@ -191,8 +191,8 @@ def gate_statistics(params: TrainedParams | dict, batch: Mapping, key: jax.Array
                     *, config: Config | None = None) -> GateStatistics:
     """:class:`GateStatistics` of a gated world model on a ``[B, T]`` batch of episodes.
 
-    ``params``: the :class:`~vsgjax.model.api.TrainedParams` of :func:`vsgjax.load` (they carry
-    their config), or a world-model params dict (``TrainState.params``) with ``config=``.
+    ``params``: the params of :func:`vsgjax.load` (they carry their config), or a world-model
+    params dict (``TrainState.params``) with ``config=``.
     ``key`` defaults to ``PRNGKey(0)``. Raises ValueError for a model without gates and for a
     batch whose shapes do not match the params (naming the expected shapes).
     """
@@ -201,13 +201,15 @@ def gate_statistics(params: TrainedParams | dict, batch: Mapping, key: jax.Array
             raise ValueError("config= differs from the config the TrainedParams carry; "
                              "leave config out")
         config, params = params.config, params.wm
+    elif isinstance(params, AgentParams):  # another agent's run (vsgjax.load): no gates
+        config = params.config
     elif config is None:
         raise TypeError("gate_statistics needs config= with a plain params dict (the "
                         "TrainedParams of vsgjax.load carry their config)")
     name = config.model.name
-    if name not in GATED_MODELS:
+    if name not in gated_models():
         raise ValueError(f"model {name!r} has no gates: gate statistics exist only for the "
-                         f"gated models ({', '.join(GATED_MODELS)})")
+                         f"gated models ({', '.join(gated_models())})")
     _check_batch(config, params, batch)
     key = jax.random.PRNGKey(DEFAULT_SEED) if key is None else key
     keys = (*obs_spec_of(params).keys, "action", "is_first")

@@ -49,7 +49,7 @@ def _as_batch(gate: jax.Array) -> jax.Array:
     return gate
 
 
-def gate_statistics(gate: jax.Array, prob: jax.Array) -> dict[str, jax.Array]:
+def gate_metrics(gate: jax.Array, prob: jax.Array) -> dict[str, jax.Array]:
     """Gate metrics (all scalars, computed without gradient).
 
     * ``gate_units_per_step_{mean,std}``: open units per time step, over (B, T);

@@ -2,7 +2,7 @@
 
 All modules accept any number of leading batch dimensions. Kernels use Glorot-uniform
 initialisation (the TensorFlow default the released code relied on); activations are ELU.
-Every module's ``dtype`` is the compute dtype of its matmuls (:mod:`vsgjax.model.precision`):
+Every module's ``dtype`` is the compute dtype of its matmuls (:mod:`vsgjax.agents.precision`):
 parameters are float32 and every output is float32.
 
 Vector observations go through :class:`MLPEncoder` and :class:`MLPDecoder` (one output head
@@ -23,7 +23,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from vsgjax.model.precision import matmul
+from vsgjax.agents.precision import matmul
 
 _GLOROT = nn.initializers.xavier_uniform()
 ENCODER_KERNELS = (4, 4, 4, 4)
@@ -72,7 +72,7 @@ def conv_stride2(x: jax.Array, kernel: jax.Array, dtype=jnp.float32) -> jax.Arra
     ``x`` [..., h, w, Cin], ``kernel`` [K, K, Cin, Cout] -> [..., (h-K)//2+1, (w-K)//2+1, Cout].
     On the CPU this beats XLA's native convolution for every encoder layer (up to 10x for the
     small-spatial, many-channel last layer), forward and backward. ``dtype``: the matmul's
-    compute dtype (:func:`vsgjax.model.precision.matmul`).
+    compute dtype (:func:`vsgjax.agents.precision.matmul`).
     """
     size, _, cin, cout = kernel.shape
     oh, ow = (x.shape[-3] - size) // 2 + 1, (x.shape[-2] - size) // 2 + 1
@@ -116,7 +116,7 @@ def conv_transpose_stride2(x: jax.Array, kernel: jax.Array, dtype=jnp.float32) -
     patches: each pixel times all taps is the output (overlap-add). Overlap-add on larger inputs
     moves less memory forward, but XLA's CPU backward of its shifted adds ran 4-10x slower than
     im2col's (the 30x30 -> 64x64 layer: 6.7 s against 0.67 s forward + backward at batch 800).
-    ``dtype``: the matmuls' compute dtype (:func:`vsgjax.model.precision.matmul`); the shifted sums
+    ``dtype``: the matmuls' compute dtype (:func:`vsgjax.agents.precision.matmul`); the shifted sums
     of the overlap-add are float32.
     """
     size, _, cin, cout = kernel.shape
@@ -163,7 +163,7 @@ class ConvTranspose2(_Stride2Layer):
 
 
 class Dense(nn.Module):
-    """``nn.Dense`` with a Glorot kernel whose matmul is :func:`vsgjax.model.precision.matmul`.
+    """``nn.Dense`` with a Glorot kernel whose matmul is :func:`vsgjax.agents.precision.matmul`.
 
     Own rather than ``nn.Dense(dtype=...)``, which would cast the bias and return the compute
     dtype (the policy wants a float32 product and bias). The same class name, parameter names,

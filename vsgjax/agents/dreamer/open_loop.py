@@ -19,10 +19,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from vsgjax.agents.dreamer import api
+from vsgjax.agents.dreamer.networks import float_to_image
 from vsgjax.config import Config
-from vsgjax.keys import IMAGE_KEY
-from vsgjax.model import api
-from vsgjax.model.networks import float_to_image
+from vsgjax.episode_keys import IMAGE_KEY
 
 CONTEXT = 15
 HORIZON = 35

@@ -12,10 +12,11 @@ The KL of one step is summed over the latent dimensions (for SVSG with ``kl_mask
 dimension's KL is first multiplied by the straight-through gate sample, so closed units cost
 nothing and the mask passes gradient into the gate probability); the free nats clamp the mean
 over the whole batch, not each step. ``L_gate`` is the gate sparsity loss of
-:mod:`vsgjax.model.gates`. Log-likelihoods are summed over pixels (vector entries) and averaged over
+:mod:`vsgjax.agents.dreamer.gates`. Log-likelihoods are summed over pixels (vector entries) and
+averaged over
 batch and time.
 
-The observations x are the keys of an :class:`~vsgjax.model.observations.ObsSpec` (``wm.encoder``):
+The observations x are the keys of an :class:`~vsgjax.observations.ObsSpec` (``wm.encoder``):
 the 64x64 ``image`` goes through the CNN, the vector keys (concatenated in key order) through
 an MLP; the embedding is the two concatenated (image first), and with both, -ln p(x|s) is the
 sum of the image's and the vectors' unit-variance Gaussian terms. The dynamics see only the
@@ -23,7 +24,7 @@ embedding.
 
 All per-step terms are computed per sequence (:meth:`WorldModel.sequence_terms`, unbatched) and
 vmapped over the batch with one PRNG key per sequence. The networks' matmuls run in
-``model.precision`` (:mod:`vsgjax.model.precision`); the loss and all its terms are float32.
+``model.precision`` (:mod:`vsgjax.agents.precision`); the loss and all its terms are float32.
 """
 
 from __future__ import annotations
@@ -36,10 +37,9 @@ from collections.abc import Mapping, Sequence
 import jax
 import jax.numpy as jnp
 
-from vsgjax.config import Config, ConfigError
-from vsgjax.model import gates
-from vsgjax.model.dynamics import make_dynamics
-from vsgjax.model.networks import (
+from vsgjax.agents.dreamer import gates
+from vsgjax.agents.dreamer.dynamics import make_dynamics
+from vsgjax.agents.dreamer.networks import (
     DECODER_KERNELS,
     HEAD_PREFIX,
     MLP,
@@ -52,8 +52,9 @@ from vsgjax.model.networks import (
     image_to_float,
     normal_log_prob,
 )
-from vsgjax.model.observations import IMAGE_KEY, ObsSpec, obs_spec
-from vsgjax.model.precision import compute_dtype
+from vsgjax.agents.precision import compute_dtype
+from vsgjax.config import Config, ConfigError
+from vsgjax.observations import IMAGE_KEY, ObsSpec, obs_spec
 
 sg = jax.lax.stop_gradient
 IMAGE_SIZE = 64  # the CNN encodes and decodes 64x64 images
@@ -121,7 +122,7 @@ class WorldModel:
     """Encoder, dynamics, decoder, reward (+ discount) heads. Hashable: usable as a jit static.
 
     ``obs_shape``: an image shape ``(64, 64, C)`` (the spec ``{"image": (64, 64, C)}``), a
-    ``{key: shape}`` dict or an :class:`~vsgjax.model.observations.ObsSpec`; stored as the ObsSpec.
+    ``{key: shape}`` dict or an :class:`~vsgjax.observations.ObsSpec`; stored as the ObsSpec.
     """
 
     config: Config
@@ -203,7 +204,8 @@ class WorldModel:
         discount]}`` (plain nested dicts): the CNN pair with an image, the MLP pair with vector
         keys.
 
-        Pure; wrap in ``jax.jit`` (as :func:`vsgjax.model.api.init` does) to compile the many
+        Pure; wrap in ``jax.jit`` (as :func:`vsgjax.agents.dreamer.api.init` does) to compile
+        the many
         initialisers into one program instead of running them op by op.
         """
         k_enc, k_dyn, k_dec, k_rew, k_dis = jax.random.split(key, 5)
@@ -397,7 +399,7 @@ class WorldModel:
             losses["gate_loss"] = gates.sparsity_loss(terms["gate_logit"], wm.gate_kappa,
                                                       wm.gate_alpha, wm.gate_free)
             metrics["gate_kl"] = gates.mean_gate_kl(terms["gate_logit"], wm.gate_kappa)
-            metrics.update(gates.gate_statistics(terms["gate_sample"],
+            metrics.update(gates.gate_metrics(terms["gate_sample"],
                                                  jax.nn.sigmoid(terms["gate_logit"])))
         loss = sum(losses.values())
         metrics.update(losses, loss=loss)

@@ -26,6 +26,10 @@ capacity and are saved on disk) but never sampled.
   length (fixed time limits), and the weighting here keeps the coverage of middle steps
   equal across episodes of different lengths.
 
+``history=h`` (frame stacking, e.g. DrQ-v2's): each sequence comes with the ``h`` steps before
+it, ``[B, h + L]``, where a step before the episode's first repeats the first (the start is
+drawn as without history, so ``is_first`` is True only at the history's steps or step ``h``).
+
 All randomness comes from the numpy Generator given to the constructor (``self.rng``; save
 ``rng.bit_generator.state`` in checkpoints): same seed and same episodes give the same batches.
 """
@@ -49,13 +53,18 @@ class Replay:
         length: int,
         rng: np.random.Generator | int,
         oversample_ends: bool = False,
+        *,
+        history: int = 0,
     ):
         if length < 1:
             raise ValueError(f"sequence length must be >= 1, got {length}")
+        if history < 0:
+            raise ValueError(f"history must be >= 0 steps, got {history}")
         if capacity < length:
             raise ValueError(f"capacity ({capacity}) must be at least the length ({length})")
         self.capacity = capacity
         self.length = length
+        self.history = history
         self.oversample_ends = oversample_ends
         self.rng = np.random.default_rng(rng)
         self._buffers: dict[str, np.ndarray] = {}
@@ -157,7 +166,8 @@ class Replay:
         return self._table
 
     def sample(self, batch_size: int) -> dict[str, np.ndarray]:
-        """A batch of ``batch_size`` sequences: dict of arrays with leading dims [B, L]."""
+        """A batch of ``batch_size`` sequences: dict of arrays with leading dims
+        ``[B, history + L]``."""
         starts, lengths, begins, ends = self._sampling_table()
         if len(lengths) == 0:
             raise ValueError(
@@ -169,6 +179,6 @@ class Replay:
         offset = draws - begins[episode]
         if self.oversample_ends:
             offset = np.minimum(offset, lengths[episode] - self.length)
-        first = starts[episode] + offset
-        positions = (first[:, None] + np.arange(self.length)) % self.capacity
+        steps = np.maximum(offset[:, None] + np.arange(-self.history, self.length), 0)
+        positions = (starts[episode][:, None] + steps) % self.capacity
         return {key: buffer[positions] for key, buffer in self._buffers.items()}

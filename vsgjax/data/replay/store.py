@@ -60,7 +60,7 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from vsgjax.data.checkpoint import atomic_write
-from vsgjax.keys import EPISODE_DTYPES, IMAGE_KEY
+from vsgjax.episode_keys import EPISODE_DTYPES, IMAGE_KEY
 
 SCHEMA_VERSION = "1"
 EPISODE_METADATA = "vsgjax.episode"

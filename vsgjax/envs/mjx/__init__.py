@@ -61,3 +61,14 @@ def parse_mjx_task(name: str) -> TaskSpec:
 def make_mjx_task(name: str, action_repeat: int = 2, time_limit: int = 1000) -> MjxTask:
     """The task ``name`` with the dmc preset's defaults (``time_limit`` counts env steps)."""
     return MjxTask(parse_mjx_task(name), action_repeat, time_limit)
+
+
+def parse(task: str, rest: str) -> tuple[str]:
+    """``mjx_<domain>_<task>`` -> ``(rest,)``; TaskError listing the MJX tasks otherwise."""
+    parse_mjx_task(task)
+    return (rest,)
+
+
+def build(env_cfg) -> MjxTask:
+    """The device task of an env config (its task, action repeat and time limit)."""
+    return make_mjx_task(env_cfg.task, env_cfg.action_repeat, env_cfg.time_limit)

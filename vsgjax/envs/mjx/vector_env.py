@@ -18,7 +18,7 @@ drives MJX tasks as it drives gymnasium envs. Each ``step`` call is one jitted `
 * Seeding: env i's first episode is ``task.reset(keys[i])``; every later episode of env i is
   ``task.reset(state.key)`` of its previous episode (the key ``MjxTask.reset`` leaves in the
   state for the next reset), so a batch is a deterministic function of its N start keys.
-  :func:`make_mjx_vector_env` (what ``make_env_batch`` builds) starts env i from
+  :func:`vsgjax.envs.make_envs` (what ``make_env_batch`` builds) starts env i from
   ``jax.random.PRNGKey(seed + i)`` (``+ EVAL_SEED_OFFSET`` for eval envs, the seed ranges of
   the gymnasium tasks); the device loop resets its N envs from ``split(reset_key, N)``, and
   an ``MjxVectorEnv`` built with those keys replays its episodes (``tests/test_mjx_host_loop``).
@@ -36,10 +36,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vsgjax.config import EnvConfig
-from vsgjax.envs.mjx import make_mjx_task
 from vsgjax.envs.mjx.core import MjxState, MjxTask
-from vsgjax.keys import VECTOR_KEY
+from vsgjax.episode_keys import VECTOR_KEY
 
 
 def seed_keys(seeds: Sequence[int]) -> jax.Array:
@@ -122,9 +120,3 @@ def _reset(task: MjxTask, keys: jax.Array) -> tuple[MjxState, dict]:
 def _step(task: MjxTask, state: MjxState, actions: jax.Array) -> tuple[MjxState, dict]:
     state = jax.vmap(task.step)(state, actions)
     return state, _outputs(task, state)
-
-
-def make_mjx_vector_env(env_cfg: EnvConfig, seeds: Sequence[int]) -> MjxVectorEnv:
-    """One env of ``env_cfg.task`` per seed (:func:`vsgjax.envs.make_envs` picks the seeds)."""
-    task = make_mjx_task(env_cfg.task, env_cfg.action_repeat, env_cfg.time_limit)
-    return MjxVectorEnv(task, seed_keys(seeds))

@@ -1,7 +1,7 @@
-"""Latent dynamics models behind one interface (:class:`vsgjax.model.dynamics.base.Dynamics`)."""
+"""Latent dynamics models behind one interface
+(:class:`vsgjax.agents.dreamer.dynamics.base.Dynamics`)."""
 
-from vsgjax.config import MODELS, ModelConfig
-from vsgjax.model.dynamics.base import (
+from vsgjax.agents.dreamer.dynamics.base import (
     Dynamics,
     GatedRSSMState,
     RSSMState,
@@ -9,18 +9,21 @@ from vsgjax.model.dynamics.base import (
     State,
     SVSGState,
 )
-from vsgjax.model.dynamics.rssm import RSSM
-from vsgjax.model.dynamics.ssm import SSM
-from vsgjax.model.dynamics.svsg import SVSG
+from vsgjax.agents.dreamer.dynamics.rssm import RSSM
+from vsgjax.agents.dreamer.dynamics.ssm import SSM
+from vsgjax.agents.dreamer.dynamics.svsg import SVSG
+from vsgjax.config import ModelConfig
+from vsgjax.registry.agents import agent_entry, dreamer_models
 
-_CLASSES = {"dreamerv1": RSSM, "dreamerv2": RSSM, "vsg": RSSM, "svsg": SVSG, "ssm": SSM}
+_CLASSES = {cls.__name__: cls for cls in (RSSM, SVSG, SSM)}  # an entry's "dynamics" option
 
 
 def make_dynamics(model_cfg: ModelConfig) -> Dynamics:
-    """The dynamics model named by ``model_cfg.name`` (one of ``vsgjax.config.MODELS``)."""
-    if model_cfg.name not in _CLASSES:
-        raise ValueError(f"unknown model {model_cfg.name!r}; valid: {', '.join(MODELS)}")
-    return _CLASSES[model_cfg.name](model_cfg)
+    """The dynamics of model ``model_cfg.name`` (its registry entry's ``dynamics`` option)."""
+    if model_cfg.name not in dreamer_models():
+        raise ValueError(f"model {model_cfg.name!r} has no latent dynamics; valid: "
+                         f"{', '.join(dreamer_models())}")
+    return _CLASSES[agent_entry(model_cfg.name).option("dynamics")](model_cfg)
 
 
 __all__ = [

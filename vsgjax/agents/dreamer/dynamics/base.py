@@ -15,7 +15,7 @@ posterior step on a pre-projected embedding (``project_embed`` + ``_obs_step_pro
 the posterior's first dense layer over ``[·, e]`` is split into a part on ``e`` and a part on
 the rest, so :meth:`observe` projects all ``T`` embeddings in one matmul outside the scan.
 Every dense layer's matmul runs in :attr:`Dynamics.dtype` (``cfg.precision``,
-:mod:`vsgjax.model.precision`); states, distributions and gates are float32.
+:mod:`vsgjax.agents.precision`); states, distributions and gates are float32.
 """
 
 from __future__ import annotations
@@ -28,10 +28,11 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from vsgjax.agents.dreamer.cells import GATE_MODES, dense, dense_init
+from vsgjax.agents.dreamer.distributions import Latent, LatentSpace
+from vsgjax.agents.precision import compute_dtype
 from vsgjax.config import ModelConfig
-from vsgjax.model.cells import GATE_MODES, dense, dense_init
-from vsgjax.model.distributions import Latent, LatentSpace
-from vsgjax.model.precision import compute_dtype
+from vsgjax.registry.agents import gated_models
 
 
 class RSSMState(NamedTuple):
@@ -255,7 +256,9 @@ class Dynamics(abc.ABC):
         return state.gate, jax.nn.sigmoid(logit)
 
     def gate_logits(self, state: State) -> jax.Array:
-        """Gate logits, for the numerically stable sparsity loss (:mod:`vsgjax.model.gates`)."""
+        """Gate logits, for the numerically stable sparsity loss
+        (:mod:`vsgjax.agents.dreamer.gates`)."""
         if not self.gated:
-            raise ValueError(f"model {self.cfg.name!r} has no gates (gated: vsg, svsg)")
+            raise ValueError(f"model {self.cfg.name!r} has no gates (gated: "
+                             f"{', '.join(gated_models())})")
         return state.gate_logit

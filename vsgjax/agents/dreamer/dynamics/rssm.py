@@ -17,20 +17,18 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from vsgjax.model.cells import cell_init, dense, dense_init, gru_cell, sparse_gru_cell
-from vsgjax.model.dynamics.base import Dynamics, GatedRSSMState, RSSMState
-
-RSSM_MODELS = ("dreamerv1", "dreamerv2", "vsg")
+from vsgjax.agents.dreamer.cells import cell_init, dense, dense_init, gru_cell, sparse_gru_cell
+from vsgjax.agents.dreamer.dynamics.base import Dynamics, GatedRSSMState, RSSMState
+from vsgjax.registry.agents import agent_entry
 
 
 @dataclass(frozen=True)
 class RSSM(Dynamics):
-    """Recurrent state-space model; the sparse-gated cell when ``cfg.name == "vsg"``."""
+    """Recurrent state-space model; the sparse-gated cell when the model's registry entry is
+    gated (VSG)."""
 
     def __post_init__(self):
         super().__post_init__()
-        if self.cfg.name not in RSSM_MODELS:
-            raise ValueError(f"RSSM model name {self.cfg.name!r}; valid: {', '.join(RSSM_MODELS)}")
         if self.cfg.deter <= 0:
             raise ValueError(
                 f"model.deter must be positive for {self.cfg.name!r}, got {self.cfg.deter}"
@@ -38,7 +36,7 @@ class RSSM(Dynamics):
 
     @property
     def gated(self) -> bool:
-        return self.cfg.name == "vsg"
+        return agent_entry(self.cfg.name).gated
 
     @property
     def feat_dim(self) -> int:

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from vsgjax.model.cells import dense, dense_init
-from vsgjax.model.dynamics.base import Dynamics, SSMState
+from vsgjax.agents.dreamer.cells import dense, dense_init
+from vsgjax.agents.dreamer.dynamics.base import Dynamics, SSMState
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,8 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from vsgjax.model.cells import cell_init, dense, dense_init, gated_update, sparse_gru_cell
-from vsgjax.model.dynamics.base import Dynamics, SVSGState
+from vsgjax.agents.dreamer.cells import cell_init, dense, dense_init, gated_update, sparse_gru_cell
+from vsgjax.agents.dreamer.dynamics.base import Dynamics, SVSGState
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,7 @@ class SVSG(Dynamics):
         super().__post_init__()
         if self.cfg.classes != 0:
             raise ValueError(
-                f"svsg gates its latent per unit and needs Gaussian latents (model.classes=0), "
+                f"SVSG gates its latent per unit and needs Gaussian latents (model.classes=0), "
                 f"got model.classes={self.cfg.classes}"
             )
 

@@ -1,0 +1,110 @@
+"""The agent and task-family registries are the only places that name models and families.
+
+Every string literal in ``vsgjax/`` and ``experiments/`` (parsed with ``ast``: plain strings
+and the literal parts of f-strings) is checked: none may be a model name, a family prefix
+(``"mjx"``), a prefix with its underscore (``"mjx_"``) or a whole task name (``"bbs_basic"``),
+outside the registries themselves and the modules they point at (each agent's presets, each
+family's env module). Outside the check: ``experiments/bench/`` (a benchmark's choice of
+which model to time is data, as an experiment file's is) and ``experiments/reference_scores/``
+(its converters read other projects' file names).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+from vsgjax.config import ConfigError, make_config
+from vsgjax.registry.agents import AGENTS, MODELS, agent_entry, dreamer_models, gated_models
+from vsgjax.registry.tasks import FAMILIES, TaskError, family_of
+
+ROOT = Path(__file__).resolve().parents[1]
+CHECKED = ("vsgjax", "experiments")
+EXEMPT_DIRS = ("vsgjax/registry", "vsgjax/envs/mjx", "experiments/bench",
+               "experiments/reference_scores")
+
+
+def _module_path(reference: str) -> str:
+    return reference.partition(":")[0].replace(".", "/") + ".py"
+
+
+def exempt_files() -> set[str]:
+    """The registries and the modules their entries name (presets, family env modules)."""
+    files = {_module_path(entry.presets) for entry in AGENTS.values()}
+    for family in FAMILIES.values():
+        files |= {_module_path(family.parse), _module_path(family.build)}
+    return files
+
+
+def forbidden(text: str) -> bool:
+    if text in MODELS or text in FAMILIES or text in {f"{p}_" for p in FAMILIES}:
+        return True
+    try:
+        family_of(text)
+    except TaskError:
+        return False
+    return text.count(" ") == 0 and text.islower() and text.replace("_", "").isalnum()
+
+
+def literals(path: Path):
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            yield node.lineno, node.value
+
+
+def test_no_model_or_family_name_outside_the_registries():
+    exempt = exempt_files()
+    found = []
+    for top in CHECKED:
+        for path in sorted((ROOT / top).rglob("*.py")):
+            relative = path.relative_to(ROOT).as_posix()
+            if relative in exempt or relative.startswith(EXEMPT_DIRS):
+                continue
+            found += [f"{relative}:{line}: {text!r}" for line, text in literals(path)
+                      if forbidden(text)]
+    assert not found, "names that belong in vsgjax/registry/:\n" + "\n".join(found)
+
+
+def test_the_check_catches_a_literal_model_name(tmp_path):
+    """The scan above can fail: a module with a model name and an f-string family prefix."""
+    module = tmp_path / "bad.py"
+    module.write_text('MODEL = "vsg"\nname = f"mjx_{1}"\nok = "vsgjax"\n')
+    assert [text for _, text in literals(module) if forbidden(text)] == ["vsg", "mjx_"]
+
+
+def test_every_entry_resolves_and_names_real_code():
+    from vsgjax.registry import resolve
+
+    for entry in AGENTS.values():
+        assert callable(resolve(entry.implementation)), entry.name
+        assert (ROOT / _module_path(entry.presets)).exists(), entry.presets
+    for family in FAMILIES.values():
+        assert callable(resolve(family.parse)) and callable(resolve(family.build))
+    assert set(gated_models()) < set(dreamer_models()) < set(MODELS)
+
+
+def test_an_unknown_model_lists_the_registered_ones():
+    with pytest.raises(ValueError, match="unknown model 'dreamerv4'; valid: dreamerv1"):
+        agent_entry("dreamerv4")
+    with pytest.raises(ConfigError, match="drqv2"):
+        make_config("bbs_basic", "dreamerv4", "debug")
+
+
+def test_a_discrete_task_refuses_a_continuous_only_agent_naming_model_task_and_why():
+    with pytest.raises(ConfigError) as error:
+        make_config("atari_pong", "drqv2", "debug")
+    message = str(error.value)
+    assert "'drqv2'" in message and "'atari_pong'" in message and "discrete" in message
+    assert "valid models for 'atari_pong'" in message and "drqv2," not in message
+
+
+@pytest.mark.parametrize("model, key, other", [
+    ("drqv2", "wm.lr=1e-3", "drq.*"), ("drqv2", "ac.entropy=0.1", "drq.*"),
+    ("vsg", "drq.nstep=1", "wm.*")])
+def test_a_key_of_another_agent_is_refused_naming_the_key_and_the_model(model, key, other):
+    with pytest.raises(ConfigError) as error:
+        make_config("dmc_walker_walk", model, "debug", [key])
+    message = str(error.value)
+    assert repr(key.partition("=")[0]) in message and repr(model) in message and other in message

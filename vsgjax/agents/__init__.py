@@ -1,0 +1,17 @@
+"""The agents: the interface they share (:mod:`~vsgjax.agents.interface`), one package each
+(``dreamer/``: DreamerV1, DreamerV2, VSG, SVSG, SSM; ``drqv2/``: DrQ-v2), and
+:func:`make_agent`, which builds the agent a config names through the registry
+(:mod:`vsgjax.registry.agents`)."""
+
+from __future__ import annotations
+
+from vsgjax.config import Config
+from vsgjax.registry import resolve
+from vsgjax.registry.agents import agent_entry
+
+
+def make_agent(config: Config, spec):
+    """The agent of ``config.model.name`` for an env ``spec`` (``.obs``, ``.action_dim``,
+    ``.discrete``); the only place an agent is constructed outside its own package."""
+    agent_class = resolve(agent_entry(config.model.name).implementation)
+    return agent_class(config, spec.obs, spec.action_dim, spec.discrete)

@@ -1,0 +1,123 @@
+"""The agent registry: every ``--model`` name, the agent that implements it, its display name,
+its presets and what it can train on.
+
+An entry's ``implementation`` is the agent class (``"module:Class"``, built as
+``Class(config, obs_shape, action_dim, discrete)``; see :mod:`vsgjax.agents.interface`) and
+``presets`` the module of its family's preset tables (``domain`` and ``size`` layers, pure
+data). The entry's own layers (``model``, ``by_column``, ``by_size``) hold what differs between
+agents of one family. :func:`vsgjax.config.make_config` applies, in order: the family's
+column layer, the entry's ``model`` layer, its ``by_column`` layer, the family's size layer, the
+entry's ``by_size`` layer, then the command line's overrides.
+
+Adding an agent: its package under ``vsgjax/agents/``, its presets module, and one entry here
+(docs/architecture.md shows DrQ-v2 as the example).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from vsgjax.registry.tasks import CONTINUOUS, DISCRETE, IMAGE, VECTOR
+
+# Config sections every agent reads; an agent names the others it reads in ``sections``.
+SHARED_SECTIONS = ("env", "train")
+# Keys of other sections every agent takes: the matmul dtype.
+SHARED_KEYS = ("model.name", "model.precision")
+
+
+@dataclass(frozen=True)
+class AgentEntry:
+    """One ``--model`` name.
+
+    ``options``: family-specific facts as ``(key, value)`` pairs (the Dreamer family's
+    ``dynamics``: the name of its latent dynamics class in ``vsgjax/agents/dreamer/dynamics/``).
+    """
+
+    name: str
+    display: str
+    implementation: str
+    presets: str
+    sections: tuple[str, ...]
+    gated: bool = False
+    actions: tuple[str, ...] = (CONTINUOUS, DISCRETE)
+    observations: tuple[str, ...] = (IMAGE, VECTOR)
+    model: dict = field(default_factory=dict, hash=False)
+    by_column: dict = field(default_factory=dict, hash=False)
+    by_size: dict = field(default_factory=dict, hash=False)
+    options: tuple[tuple[str, str], ...] = ()
+
+    def option(self, key: str) -> str:
+        return dict(self.options)[key]
+
+    def takes(self, key: str) -> bool:
+        """Whether a dotted config key is one this agent reads."""
+        section = key.partition(".")[0]
+        return section in SHARED_SECTIONS or section in self.sections or key in SHARED_KEYS
+
+
+_DREAMER = "vsgjax.agents.dreamer.agent:DreamerAgent"
+_DREAMER_PRESETS = "vsgjax.agents.dreamer.presets"
+_DREAMER_SECTIONS = ("model", "wm", "ac", "optim")
+
+AGENTS: dict[str, AgentEntry] = {entry.name: entry for entry in (
+    AgentEntry(
+        "dreamerv1", "DreamerV1", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS,
+        model={"model.stoch": 30, "model.classes": 0, "model.cell_norm": True},
+        by_column={"bbs": {"wm.kl_free": 1.0, "model.stoch": 32},  # bringbackshapes_gaussian
+                   "dmc": {"model.deter": 200, "model.hidden": 200}},
+        by_size={"cpu": {"model.stoch": 16}, "debug": {"model.stoch": 8}},
+        options=(("dynamics", "RSSM"),)),
+    AgentEntry(
+        "dreamerv2", "DreamerV2", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS,
+        model={"model.stoch": 32, "model.classes": 32, "model.cell_norm": True},
+        by_size={"small": {"model.stoch": 16, "model.classes": 16},
+                 "cpu": {"model.stoch": 8, "model.classes": 8},
+                 "debug": {"model.stoch": 4, "model.classes": 4}},
+        options=(("dynamics", "RSSM"),)),
+    AgentEntry(
+        "vsg", "VSG", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS, gated=True,
+        model={"model.stoch": 32, "model.classes": 32, "model.cell_norm": False},
+        by_size={"small": {"model.stoch": 16, "model.classes": 16},
+                 "cpu": {"model.stoch": 8, "model.classes": 8},
+                 "debug": {"model.stoch": 4, "model.classes": 4}},
+        options=(("dynamics", "RSSM"),)),
+    AgentEntry(
+        "svsg", "SVSG", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS, gated=True,
+        model={"model.deter": 0, "model.stoch": 1024, "model.classes": 0,
+               "model.cell_norm": False, "wm.kl_masked": True},
+        by_column={"bbs": {"wm.kl_free": 1.0}},
+        by_size={"small": {"model.deter": 0, "model.stoch": 256},
+                 "cpu": {"model.deter": 0, "model.stoch": 128},
+                 "debug": {"model.deter": 0, "model.stoch": 32}},
+        options=(("dynamics", "SVSG"),)),
+    AgentEntry(
+        "ssm", "SSM", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS,
+        model={"model.deter": 0, "model.stoch": 30, "model.classes": 0,
+               "model.cell_norm": False},
+        by_size={"small": {"model.deter": 0}, "cpu": {"model.deter": 0, "model.stoch": 16},
+                 "debug": {"model.deter": 0, "model.stoch": 8}},
+        options=(("dynamics", "SSM"),)),
+    AgentEntry(
+        "drqv2", "DrQ-v2", "vsgjax.agents.drqv2.agent:DrQV2Agent",
+        "vsgjax.agents.drqv2.presets", ("drq",), actions=(CONTINUOUS,)),
+)}
+
+MODELS = tuple(AGENTS)
+DEFAULT_MODEL = "vsg"  # the paper's model: what a config and the command line take by default
+
+
+def agent_entry(name: str) -> AgentEntry:
+    """The entry of a ``--model`` name; ValueError listing the valid names."""
+    if name not in AGENTS:
+        raise ValueError(f"unknown model {name!r}; valid: {', '.join(MODELS)}")
+    return AGENTS[name]
+
+
+def dreamer_models() -> tuple[str, ...]:
+    """The models of the Dreamer family (a world model with latent dynamics)."""
+    return tuple(name for name, entry in AGENTS.items() if entry.implementation == _DREAMER)
+
+
+def gated_models() -> tuple[str, ...]:
+    """The models whose latent states carry update gates (VSG's and SVSG's)."""
+    return tuple(name for name, entry in AGENTS.items() if entry.gated)
