@@ -84,7 +84,7 @@ def test_curves_lines_labels_and_reference(tmp_path):
     data = report.curves_data(Context.create(experiment, tmp_path))
     lines = data.lines["bbs_basic"]
     assert set(lines) == {"DreamerV2", "DreamerV2 (paper)", "VSG", "VSG (paper)", "SVSG",
-                          "SVSG (paper)"}
+                          "SVSG (paper)", "DrQ-v2"}  # the paper's BBS file has no DrQ-v2
     ours = lines["VSG"]
     assert ours.source == "ours" and ours.label == "VSG"
     assert list(ours.x) == [100_000, 200_000, 300_000]
@@ -128,7 +128,7 @@ def test_missing_runs_are_listed(tmp_path):
     built = report.build_report(experiment, tmp_path, tmp_path / "out")
     assert built.missing == [absent]
     text = built.markdown.read_text()
-    assert "1 of 6 runs have no results" in text
+    assert "1 of 8 runs have no results" in text
     assert f"bbs_basic/SVSG s1: `{absent.logdir(tmp_path) / 'scores.jsonl'}`" in text
 
 
@@ -346,7 +346,7 @@ def test_cli_writes_png_pdf_and_report(tmp_path, capsys):
     out = tmp_path / "out"
     assert report.main(["bbs_basic", "--root", str(tmp_path), "--out", str(out), "--seeds", "1",
                         "--steps", "4000", "--bin", "1000"]) == 0
-    assert "1 of 3 runs missing" in capsys.readouterr().out
+    assert "2 of 4 runs missing" in capsys.readouterr().out  # SVSG s0 and DrQ-v2 s0
     for name in ("curves", "bars"):
         assert (out / f"{name}.png").read_bytes().startswith(b"\x89PNG")
         assert (out / f"{name}.pdf").read_bytes().startswith(b"%PDF")

@@ -21,7 +21,7 @@ import pytest
 from vsgjax import train
 from vsgjax.config import ConfigError, make_config
 from vsgjax.data import checkpoint
-from vsgjax.data.replay.device import DeviceReplay
+from vsgjax.data.replay.device import DeviceReplay, store_episodes
 from vsgjax.envs import TaskError
 from vsgjax.envs.mjx import make_mjx_task
 from vsgjax.episode_keys import VECTOR_KEY
@@ -119,7 +119,7 @@ def test_the_ring_overwrites_the_oldest_episode_batch(loop):
     replay = synthetic_replay(loop, stored=0)
     records = {k: jnp.full(v.shape[1:], 7, v.dtype) for k, v in replay.data.items()}
     for _ in range(loop.replay_episodes + 1):
-        replay = loop._store(replay, records)
+        replay = store_episodes(replay, records)
     assert int(replay.stored) == loop.replay_episodes + 1
     assert float(replay.data["reward"][0].min()) == 7  # slot 0 written twice
     assert float(replay.data["reward"][1].max()) == 7

@@ -13,8 +13,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from vsgjax.config.schema import Config, ConfigError
-from vsgjax.registry.tasks import family_of
+from vsgjax.config.schema import Config, ConfigError, EnvConfig
+from vsgjax.registry.tasks import device_families, family_of
 
 # Seeds up to 2**30 leave room below 2**31 for the evaluation envs' offset and the env index.
 MAX_SEED = 2**30
@@ -72,6 +72,8 @@ RANGES = {
     "drq.std_steps": AT_LEAST_1, "drq.std_clip": AT_LEAST_0, "drq.shift_pad": AT_LEAST_0,
     "env.action_repeat": AT_LEAST_1, "env.time_limit": AT_LEAST_1, "env.image_size": AT_LEAST_1,
     "env.sticky": UNIT, "env.num_envs": AT_LEAST_1, "env.eval_envs": AT_LEAST_1,
+    "env.flicker": Range(0, 1, open_high=True), "env.show_steps": AT_LEAST_0,
+    "env.noise_dims": AT_LEAST_0, "env.noise_scale": AT_LEAST_0,
     "train.seed": Range(0, MAX_SEED), "train.steps": AT_LEAST_1, "train.batch": AT_LEAST_1,
     "train.length": Range(MIN_LENGTH), "train.train_every": AT_LEAST_1,
     "train.prefill": AT_LEAST_0, "train.replay_capacity": AT_LEAST_1,
@@ -82,6 +84,10 @@ RANGES = {
 # Numeric keys checked elsewhere (when the devices are known).
 CHECKED_AT_START = ("train.devices",)
 ATARI_OPTIONS = ("env.grayscale", "env.sticky")
+# The partially observed and noisy variants of the device tasks (vsgjax/envs/mjx/variants.py);
+# whether the keys of env.hide and env.show_keys are the task's is checked where it is built.
+VARIANT_OPTIONS = ("env.flicker", "env.hide", "env.show_keys", "env.show_steps",
+                   "env.noise_dims", "env.noise_scale")
 
 
 def check_config(config: Config) -> None:
@@ -93,6 +99,7 @@ def check_config(config: Config) -> None:
     _check_sequences(config)
     _check_starts(config)
     _check_atari_options(config)
+    _check_variant_options(config)
 
 
 def numeric_values(config: Config) -> dict[str, float]:
@@ -164,3 +171,23 @@ def _check_atari_options(config: Config) -> None:
             off = False if isinstance(value, bool) else 0
             raise ConfigError(f"{key}={value} is an Atari option; valid for task "
                               f"{config.env.task!r}: {key}={off}")
+
+
+def _check_variant_options(config: Config) -> None:
+    env, defaults = config.env, EnvConfig()
+    if not family_of(env.task).on_device:
+        for key in VARIANT_OPTIONS:
+            name = key.partition(".")[2]
+            value, default = getattr(env, name), getattr(defaults, name)
+            if value != default:
+                patterns = ", ".join(family.pattern for family in device_families())
+                raise ConfigError(f"{key}={value!r} is an option of the tasks that step on the "
+                                  f"device ({patterns}); valid for task {env.task!r}: "
+                                  f"{key}={default!r}")
+    if env.show_keys.strip() and env.show_steps < 1:
+        raise ConfigError(f"env.show_steps={env.show_steps} with env.show_keys="
+                          f"{env.show_keys!r}; valid: >= 1 (the agent steps the keys are shown, "
+                          "the reset observation being step 0)")
+    if env.show_steps and not env.show_keys.strip():
+        raise ConfigError(f"env.show_steps={env.show_steps} without env.show_keys; valid: "
+                          "env.show_steps=0, or env.show_keys=<comma-separated observation keys>")

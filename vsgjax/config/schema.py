@@ -101,6 +101,7 @@ class BehaviourConfig:
     eps: float = 1e-5
     clip: float = 100.0
     weight_decay: float = 1e-6
+    memoryless: bool = False  # act from each observation alone (no carried latent state)
 
 
 @dataclass(frozen=True)
@@ -144,6 +145,13 @@ class EnvConfig:
     sticky: float = 0.0  # Atari sticky-action probability
     num_envs: int = 1
     eval_envs: int = 1
+    # Partially observed and noisy variants of device tasks (vsgjax/envs/mjx/variants.py):
+    flicker: float = 0.0  # probability that the whole observation is zeros, per agent step
+    hide: str = ""  # comma-separated observation keys that are always zero ("velocity")
+    show_keys: str = ""  # comma-separated keys zeroed from agent step show_steps on
+    show_steps: int = 0  # agent steps show_keys are visible (the reset is step 0); 0 = off
+    noise_dims: int = 0  # extra observation dims following Gaussian random walks from 0
+    noise_scale: float = 0.1  # the std of the noise dims' increment per agent step
 
 
 @dataclass(frozen=True)

@@ -198,22 +198,27 @@ class DreamerAgent:
         ``obs``: the spec's keys (``image`` [N, H, W, C] uint8, vectors [N, D] float32) and
         ``is_first`` [N] bool (other keys ignored).
         Where ``is_first``, the carried state and previous action are zeroed before the
-        posterior step. ``mode="train"`` samples the actor, ``"eval"`` takes its mode (the
-        latent state and VSG's gates are sampled in both, as in the released code). Actions are
-        float32 [N, A]: in [-1, 1] when continuous, one-hot when discrete. Returns
-        ``((posts, action), action)``.
+        posterior step. With ``ac.memoryless`` (issue 36's memoryless control) every step is
+        treated as ``is_first``: the posterior is the observation's alone, nothing is carried
+        between steps (training is unchanged). ``mode="train"`` samples the actor, ``"eval"``
+        takes its mode (the latent state and VSG's gates are sampled in both, as in the
+        released code). Actions are float32 [N, A]: in [-1, 1] when continuous, one-hot when
+        discrete. Returns ``((posts, action), action)``.
         """
         check_mode(mode)
         dyn, states, prev_actions = self.world_model.dynamics, *carry
         state_key, action_key = jax.random.split(key)
         embeds = self.world_model.encode(params["wm"], obs)
+        is_first = obs["is_first"]
+        if self.config.ac.memoryless:
+            is_first = jnp.ones_like(is_first)
 
         def posterior(state, action, is_first, embed, step_key):
             state, action = dyn.reset(state, action, is_first)
             return dyn.obs_step(params["wm"]["dynamics"], state, action, embed, step_key)[0]
 
         keys = jax.random.split(state_key, embeds.shape[0])
-        posts = jax.vmap(posterior)(states, prev_actions, obs["is_first"], embeds, keys)
+        posts = jax.vmap(posterior)(states, prev_actions, is_first, embeds, keys)
         action = self.behaviour.act(params["actor"], jax.vmap(dyn.feat)(posts), action_key, mode)
         action = jax.lax.stop_gradient(action)
         return (posts, action), action

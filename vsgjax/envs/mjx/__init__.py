@@ -70,5 +70,12 @@ def parse(task: str, rest: str) -> tuple[str]:
 
 
 def build(env_cfg) -> MjxTask:
-    """The device task of an env config (its task, action repeat and time limit)."""
-    return make_mjx_task(env_cfg.task, env_cfg.action_repeat, env_cfg.time_limit)
+    """The device task of an env config (its task, action repeat and time limit), wrapped in
+    the partially observed and noisy variant options when one is set (``env.flicker``,
+    ``env.hide``, ``env.show_keys``/``env.show_steps``, ``env.noise_dims``: see
+    :mod:`vsgjax.envs.mjx.variants`) and the plain task otherwise. Raises ConfigError for an
+    option the task cannot take (a key it does not observe, ...)."""
+    from vsgjax.envs.mjx import variants
+
+    task = make_mjx_task(env_cfg.task, env_cfg.action_repeat, env_cfg.time_limit)
+    return variants.from_env_config(task, env_cfg)
