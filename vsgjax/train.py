@@ -25,7 +25,7 @@ from vsgjax.envs import TaskError, parse_task
 from vsgjax.loop.device_trainer import DeviceTrainer
 from vsgjax.loop.driver import LoopDriver, NonFiniteLossError, group_label
 from vsgjax.loop.host_trainer import HostTrainer
-from vsgjax.loop.resolve import resolve_loop
+from vsgjax.loop.which_loop import resolve_loop
 from vsgjax.registry.agents import DEFAULT_MODEL
 from vsgjax.registry.tasks import DEFAULT_TASK, VECTOR, family_of, patterns
 

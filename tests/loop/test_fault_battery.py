@@ -53,8 +53,8 @@ from vsgjax.config import make_config
 from vsgjax.data import checkpoint
 from vsgjax.data.replay.store import read_episode
 from vsgjax.envs.mjx import make_mjx_task
-from vsgjax.loop.checkpoints import checkpoint_tree
 from vsgjax.loop.device_program import DeviceProgram
+from vsgjax.loop.run_state import checkpoint_tree
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN_TIMEOUT = 900

@@ -17,13 +17,12 @@ import pytest
 import vsgjax
 from experiments import rollouts
 from tests.support.subprocess_env import subprocess_env
-from vsgjax.agents.dreamer import api
+from vsgjax.agents.dreamer import api, open_loop
 from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.agents.dreamer.gate_statistics import gate_statistics
 from vsgjax.config import make_config, to_dict
 from vsgjax.data import checkpoint
-from vsgjax.agents.dreamer import open_loop
-from vsgjax.loop.checkpoints import checkpoint_tree
+from vsgjax.loop.run_state import checkpoint_tree
 
 ROOT = Path(__file__).resolve().parents[2]
 NOTEBOOK = ROOT / "experiments" / "notebooks" / "imagine.ipynb"

@@ -20,9 +20,9 @@ import pytest
 from vsgjax import train
 from vsgjax.config import ConfigError, make_config
 from vsgjax.data import checkpoint
-from vsgjax.loop.checkpoints import restore_latest
 from vsgjax.loop.host_trainer import HostTrainer
 from vsgjax.loop.parallel import mesh_shape, stack, take
+from vsgjax.loop.run_state import restore_latest
 
 ROOT = Path(__file__).resolve().parents[2]
 SHORT = ["env.time_limit=200", "train.eval_every=100000", "train.video_every=100000",

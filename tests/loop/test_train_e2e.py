@@ -28,9 +28,9 @@ from vsgjax.analysis.evaluation import format_table
 from vsgjax.config import make_config
 from vsgjax.data import checkpoint
 from vsgjax.loop import driver, schedule
-from vsgjax.loop.checkpoints import restore_latest
 from vsgjax.loop.evaluator import summarize
 from vsgjax.loop.logger import Logger, truncate_metrics
+from vsgjax.loop.run_state import restore_latest
 
 ROOT = Path(__file__).resolve().parents[2]
 # Short episodes so that a few hundred env steps hold several of them.

@@ -12,8 +12,8 @@ import jax
 from vsgjax.agents import make_agent
 from vsgjax.data import checkpoint
 from vsgjax.data.collect import make_env_batch
-from vsgjax.loop.checkpoints import restore_latest
 from vsgjax.loop.evaluator import Evaluator, summarize
+from vsgjax.loop.run_state import restore_latest
 from vsgjax.loop.rundir import RunDir, episode_records
 
 

@@ -31,7 +31,7 @@ from vsgjax.data.collect import make_env_batch
 from vsgjax.data.replay.store import read_episode
 from vsgjax.envs import EnvSpec
 from vsgjax.episode_keys import IMAGE_KEY, NON_OBS_KEYS
-from vsgjax.loop.checkpoints import restore_latest
+from vsgjax.loop.run_state import restore_latest
 from vsgjax.loop.rundir import RunDir
 from vsgjax.observations import ObsSpec
 from vsgjax.registry.agents import dreamer_models

@@ -23,7 +23,6 @@ from vsgjax.data import checkpoint
 from vsgjax.data.collect import Collector, EnvBatch, SeedEnvs, make_env_batch
 from vsgjax.data.replay import Replay
 from vsgjax.episode_keys import IMAGE_KEY
-from vsgjax.loop.checkpoints import checkpoint_tree, restore_latest
 from vsgjax.loop.driver import (
     LoopDriver,
     check_seed_group,
@@ -37,6 +36,7 @@ from vsgjax.loop.driver import (
 from vsgjax.loop.evaluator import Evaluator
 from vsgjax.loop.gate_logging import logs_gates
 from vsgjax.loop.parallel import Parallel, mesh_shape, resolve_devices, split_keys, stack, take
+from vsgjax.loop.run_state import checkpoint_tree, restore_latest
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters, env_seed
 

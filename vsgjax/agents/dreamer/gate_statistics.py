@@ -32,8 +32,8 @@ import jax.numpy as jnp
 
 from vsgjax.agents.dreamer.api import DEFAULT_SEED, TrainedParams, world_model_for
 from vsgjax.agents.dreamer.gates import bernoulli_kl
-from vsgjax.agents.interface import AgentParams
 from vsgjax.agents.dreamer.world_model import WorldModel, obs_spec_of
+from vsgjax.agents.interface import AgentParams
 from vsgjax.config import Config
 from vsgjax.registry.agents import agent_entry, gated_models
 

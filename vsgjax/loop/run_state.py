@@ -11,7 +11,7 @@ from vsgjax.agents.interface import Agent
 from vsgjax.data import checkpoint
 from vsgjax.envs import make_device_task
 from vsgjax.loop.device_program import DeviceProgram
-from vsgjax.loop.resolve import resolve_loop
+from vsgjax.loop.which_loop import resolve_loop
 
 
 def checkpoint_tree(state, key: jax.Array) -> dict:
