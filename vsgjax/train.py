@@ -21,7 +21,7 @@ from vsgjax.allocator import allocator_line
 from vsgjax.config import MODELS, SIZES, Config, ConfigError, make_config
 from vsgjax.config.checks import RANGES
 from vsgjax.data.checkpoint import WriteError
-from vsgjax.envs import TaskError, parse_task
+from vsgjax.envs import TaskError, make_device_task, parse_task
 from vsgjax.loop.device_trainer import DeviceTrainer
 from vsgjax.loop.driver import LoopDriver, NonFiniteLossError, group_label
 from vsgjax.loop.host_trainer import HostTrainer
@@ -115,6 +115,8 @@ def build_configs(args: argparse.Namespace, seeds: list[int],
     configs = [make_config(args.task, args.model, size,
                            [f"train.seed={seed}", *precision, *overrides]) for seed in seeds]
     parse_task(configs[0].env.task)
+    if family_of(args.task).on_device:  # its options are checked against the task's keys
+        make_device_task(configs[0].env)
     return configs, {"size": size_note, "precision": precision_note}
 
 

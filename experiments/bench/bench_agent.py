@@ -21,9 +21,10 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from vsgjax.agents import make_agent
 from vsgjax.agents.dreamer import api
-from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.config import make_config
+from vsgjax.envs import EnvSpec
 
 MODELS = ("vsg", "svsg", "dreamerv2")
 REPEATS = 5
@@ -63,7 +64,7 @@ def median_times(fn, *args) -> tuple[float, float]:
 
 def bench_model(model: str) -> dict:
     config = make_config("bbs_basic", model, "small")
-    agent, key = DreamerAgent(config, (64, 64, 3), 2, False), jax.random.PRNGKey(0)
+    agent, key = make_agent(config, EnvSpec((64, 64, 3), 2, False)), jax.random.PRNGKey(0)
     batch, state = replay_batch(config, 2), agent.init(key)
     wm_state = api.TrainState(state.params["wm"], state.opt["wm"], state.step)
     row = {"model": model,
@@ -87,8 +88,8 @@ def markdown(rows: list[dict]) -> str:
         "## Agent update (`vsgjax/agents/dreamer/agent.py`, small size, BBS batch 16 x 50)",
         "",
         f"Median of {REPEATS} calls after compilation; wall / process-CPU seconds. `wm` is the "
-        "world-model update alone (`api.world_model_step`), `agent` the joint update (world model + "
-        "actor + critic over 800 start states x horizon 15). `policy` is one jitted "
+        "world-model update alone (`api.world_model_step`), `agent` the joint update "
+        "(world model + actor + critic over 800 start states x horizon 15). `policy` is one jitted "
         f"`policy_step` for one env. Load average at the end: {load} (2 cores, shared).",
         "",
         "| model | wm update s | agent update s | actor-critic share | policy ms "

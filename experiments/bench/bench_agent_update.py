@@ -32,9 +32,10 @@ import numpy as np
 
 from experiments.bench.bench_world_model import matmul_rate, model_flops
 from experiments.bench.run_all import machine_line
+from vsgjax.agents import make_agent
 from vsgjax.agents.dreamer import behaviour as bhv
-from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.config import make_config
+from vsgjax.envs import EnvSpec
 from vsgjax.envs.mjx import make_mjx_task
 
 RESULTS = Path(__file__).parent / "results" / "agent_update.md"
@@ -60,7 +61,7 @@ def _batch(config, obs: dict, action_dim: int) -> dict:
     return batch
 
 
-def agent_and_batch(size: str) -> tuple[DreamerAgent, dict]:
+def agent_and_batch(size: str) -> tuple[object, dict]:
     config = make_config(TASKS[size], MODEL, size)
     if size == "cpu":
         task = make_mjx_task(config.env.task, config.env.action_repeat, config.env.time_limit)
@@ -68,7 +69,7 @@ def agent_and_batch(size: str) -> tuple[DreamerAgent, dict]:
         action_dim = task.action_dim
     else:
         obs, action_dim = {"image": (64, 64, 3)}, 2
-    return DreamerAgent(config, obs, action_dim, False), _batch(config, obs, action_dim)
+    return make_agent(config, EnvSpec(obs, action_dim, False)), _batch(config, obs, action_dim)
 
 
 def median_seconds(fn, *args, repeats: int) -> float:

@@ -164,10 +164,9 @@ def make_policy(name: str, envs: EnvBatch):
     if name == "stand-in":
         params = standin_params(spec.obs_shape, spec.action_dim, jax.random.PRNGKey(0))
         return standin_policy, params, jnp.zeros((envs.num_envs, HIDDEN))
-    from vsgjax.agents.dreamer.agent import DreamerAgent
+    from vsgjax.agents import make_agent
 
-    agent = DreamerAgent(make_config("bbs_basic", "vsg", name.removeprefix("vsg-")),
-                  spec.obs_shape, spec.action_dim, spec.discrete)
+    agent = make_agent(make_config("bbs_basic", "vsg", name.removeprefix("vsg-")), spec)
 
     def policy(params, carry, obs, key):
         return agent.policy_step(params, carry, obs, key, mode="train")

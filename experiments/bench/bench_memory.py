@@ -39,11 +39,12 @@ def measure(size: str) -> dict:
     import jax
 
     from experiments.bench.bench_agent import replay_batch
-    from vsgjax.agents.dreamer.agent import DreamerAgent
+    from vsgjax.agents import make_agent
     from vsgjax.config import make_config
+    from vsgjax.envs import EnvSpec
 
     config = make_config("bbs_basic", "vsg", size, ["train.batch=16", "train.length=50"])
-    agent = DreamerAgent(config, (64, 64, 3), 2, False)
+    agent = make_agent(config, EnvSpec((64, 64, 3), 2, False))
     state = agent.init(jax.random.PRNGKey(0))
     batch = replay_batch(config, 2)
     times, faults = [], []

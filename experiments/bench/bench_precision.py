@@ -17,8 +17,9 @@ from pathlib import Path
 import jax
 
 from experiments.bench import bench_agent
-from vsgjax.agents.dreamer.agent import DreamerAgent
+from vsgjax.agents import make_agent
 from vsgjax.config import PRECISIONS, make_config
+from vsgjax.envs import EnvSpec
 
 MODELS = ("vsg",)
 RESULTS = Path(__file__).parent / "results" / "precision.md"
@@ -26,7 +27,7 @@ RESULTS = Path(__file__).parent / "results" / "precision.md"
 
 def bench_update(model: str, precision: str) -> dict:
     config = make_config("bbs_basic", model, "small", [f"model.precision={precision}"])
-    agent, key = DreamerAgent(config, (64, 64, 3), 2, False), jax.random.PRNGKey(0)
+    agent, key = make_agent(config, EnvSpec((64, 64, 3), 2, False)), jax.random.PRNGKey(0)
     batch, state = bench_agent.replay_batch(config, 2), agent.init(key)
     compile_s = bench_agent.compile_seconds(agent.train_step, agent, state, batch, key)
     agent.train_step(state, batch, key)  # populate the call cache (compiled above)

@@ -117,12 +117,13 @@ def update_child(repeats: int) -> dict:
     import jax
 
     from experiments.bench.bench_agent import replay_batch
-    from vsgjax.agents.dreamer.agent import DreamerAgent
+    from vsgjax.agents import make_agent
     from vsgjax.config import make_config
+    from vsgjax.envs import EnvSpec
     from vsgjax.loop.parallel import Parallel, stack
 
     config = make_config(TASK, "vsg", "small")
-    agent = DreamerAgent(config, (64, 64, 3), 2, False)
+    agent = make_agent(config, EnvSpec((64, 64, 3), 2, False))
     states = [agent.init(jax.random.PRNGKey(seed)) for seed in (0, 1)]
     batch = replay_batch(config, 2)
     key = jax.random.PRNGKey(0)

@@ -4,7 +4,8 @@
 experiments.bench.bench_train debug`` measures the ``debug`` size (a worst case for the
 overhead share, since its updates are cheapest).
 
-For each task, a :class:`vsgjax.loop.host_trainer.HostTrainer` is warmed up (prefill, compilation, first
+For each task, a :class:`vsgjax.loop.host_trainer.HostTrainer` is warmed up (prefill, compilation,
+first
 updates), then a window of agent steps (``WINDOWS``) of the steady-state loop is timed at the
 default train ratio (one update per ``train_every`` agent steps; evaluation disabled; logging,
 episode writing and checkpointing as configured). The same amounts of work are then timed bare:

@@ -33,13 +33,14 @@ def time_update(seeds: int, precision: str, size: str) -> tuple[float, int | Non
     import numpy as np
 
     from experiments.bench.bench_agent import replay_batch
-    from vsgjax.agents.dreamer.agent import DreamerAgent
+    from vsgjax.agents import make_agent
     from vsgjax.config import make_config
+    from vsgjax.envs import EnvSpec
     from vsgjax.loop.parallel import Parallel, stack
 
     config = make_config("bbs_basic", "vsg", size, [f"model.precision={precision}",
                                                     "train.batch=16", "train.length=50"])
-    agent = DreamerAgent(config, (64, 64, 3), 2, False)
+    agent = make_agent(config, EnvSpec((64, 64, 3), 2, False))
     parallel = Parallel(agent, seeds, 1)
     state = parallel.put_state(stack([agent.init(jax.random.PRNGKey(s)) for s in range(seeds)]))
     batch = parallel.put_batch([replay_batch(config, 2)] * seeds)

@@ -42,10 +42,10 @@ STEP_INPUTS = ("action", "is_first")  # what the posterior reads besides the obs
 
 class TrainedRun:
     """A trained run: ``config``, ``params`` (:class:`TrainedParams` for the models with a
-    world model, :class:`~vsgjax.agents.interface.AgentParams` otherwise), ``acting_params`` (what :meth:`act`
-    reads), the checkpoint's ``step`` (env steps) and ``checkpoint`` path, the ``spec`` of its
-    env, its ``agent`` and, for the Dreamer family, ``world_model`` (the functions), and its
-    episodes, read on demand."""
+    world model, :class:`~vsgjax.agents.interface.AgentParams` otherwise), ``acting_params``
+    (what :meth:`act` reads), the checkpoint's ``step`` (env steps) and ``checkpoint`` path, the
+    ``spec`` of its env, its ``agent`` and, for the Dreamer family, ``world_model`` (the
+    functions), and its episodes, read on demand."""
 
     def __init__(self, logdir: Path, config: Config, params: TrainedParams | AgentParams,
                  spec: EnvSpec, step: int, checkpoint: Path):

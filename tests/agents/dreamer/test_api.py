@@ -60,7 +60,8 @@ def test_train_step_reduces_the_loss_on_a_fixed_batch(trained):
 
 def test_train_step_is_deterministic_given_the_key(trained):
     batch, states, history, posts = trained
-    again, metrics, again_posts = api.world_model_step(CONFIG, states[-2], batch, jax.random.PRNGKey(7))
+    again, metrics, again_posts = api.world_model_step(CONFIG, states[-2], batch,
+                                                       jax.random.PRNGKey(7))
     jax.tree.map(np.testing.assert_array_equal, again.params, states[-1].params)
     jax.tree.map(np.testing.assert_array_equal, metrics, history[-1])
     jax.tree.map(np.testing.assert_array_equal, again_posts, posts)

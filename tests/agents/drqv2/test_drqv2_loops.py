@@ -69,7 +69,7 @@ def test_the_device_loop_trains_drqv2_on_an_mjx_task(tmp_path):
     with pytest.raises(ValueError, match=r"'drqv2' has no gates.*\(vsg, svsg\)"):
         vsgjax.gate_statistics(run.params, {})
     with pytest.raises(ValueError, match="no world model"):
-        run.world_model
+        _ = run.world_model
 
 
 @pytest.mark.parametrize("argv, named", [
