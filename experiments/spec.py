@@ -26,7 +26,7 @@ EVALUATION_FILE = "evaluation.jsonl"  # an evaluate job's episodes, one JSON obj
 KINDS = ("train", "evaluate", "rollouts")
 _TOP_KEYS = {"description", "reference", "size", "steps", "seeds", "groups", "figures", "source",
              "episodes", "kind", "seeds_per_process"}
-_GROUP_KEYS = {"tasks", "models", "variant", "method", "overrides", "steps"}
+_GROUP_KEYS = {"tasks", "models", "variant", "method", "overrides", "steps", "seeds"}
 
 
 class ExperimentError(ValueError):
@@ -219,7 +219,8 @@ def _groups(path: Path, data: dict) -> list[dict]:
 
 def _expand(name: str, path: Path, data: dict, size: str, seeds: int | None,
             steps: int | None) -> list[Run]:
-    """Every task x model x seed of every group, in file order."""
+    """Every task x model x seed of every group, in file order (a group's ``seeds`` caps the
+    experiment's: a control trained with fewer seeds)."""
     count = seeds if seeds is not None else int(data.get("seeds", 1))
     runs = []
     for index, group in enumerate(_groups(path, data)):
@@ -229,9 +230,10 @@ def _expand(name: str, path: Path, data: dict, size: str, seeds: int | None,
             total = int(group.get("steps", data.get("steps")))
         else:
             raise ExperimentError(f"{path}: group {index} has no steps (and no top-level steps)")
+        group_count = min(count, int(group["seeds"])) if "seeds" in group else count
         for task in group["tasks"]:
             for model in group["models"]:
-                for seed in range(count):
+                for seed in range(group_count):
                     runs.append(Run(name, task, model, seed, size, total,
                                     group.get("variant", ""), group.get("method", ""),
                                     tuple(group.get("overrides", ()))))

@@ -481,3 +481,19 @@ def test_a_run_dir_with_another_config_is_reported_and_left_alone(definitions, t
     same = make_config("bbs_basic", "vsg", "debug", [*json.loads(OVERRIDES), "train.steps=7"])
     (job.job_dir / "config.json").write_text(json.dumps(to_dict(same)))
     assert launch.job_status(job).state == "new"
+
+
+def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
+    """``cpu_memory``: 3 seeds per variant model, 2 for the memoryless controls, 3 for SVSG
+    and DreamerV1; every run's config (variant options included) resolves."""
+    experiment = load_experiment("cpu_memory")
+    seeds = {}
+    for run in experiment.runs:
+        seeds.setdefault((run.task, run.method), []).append(run.seed)
+        run.config()
+    assert seeds[("mjx_cartpole_swingup", "VSG-hidevel")] == [0, 1, 2]
+    assert seeds[("mjx_cartpole_swingup", "DreamerV2-hidevel-memoryless")] == [0, 1]
+    assert seeds[("mjx_reacher_easy", "DreamerV2-memoryless")] == [0, 1]
+    assert seeds[("mjx_walker_walk", "SVSG")] == [0, 1, 2]
+    assert len(experiment.runs) == 3 * 2 * 3 + 2 * 4 + 2 * 2 * 3
+    assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 4 + 2 * 2
