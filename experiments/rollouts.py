@@ -14,8 +14,14 @@ each step (units x time; the posterior's gates during the context, the prior's d
 imagination) and beneath it the fraction of units open per step (that sample, and the mean
 over samples). Models without gates get the grid only, and a note.
 
+The same test as numbers: the prediction error at each imagined step, of the observations
+(pixels in [0, 1]) and of the rewards, averaged over the samples drawn
+(:func:`vsgjax.agents.dreamer.open_loop.open_loop_errors`, the function training logs to
+``open_loop.jsonl`` at every evaluation); printed at imagined steps 5, 15 and 35.
+
 Files (default ``--out``: ``<LOGDIR>/rollouts/``): ``open_loop-ep<N>.png/.pdf``,
-``gates-ep<N>.png/.pdf`` and ``rollouts-ep<N>.npz`` (the figure data).
+``gates-ep<N>.png/.pdf`` and ``rollouts-ep<N>.npz`` (the figure data, with the errors as
+``obs_mse`` and ``reward_mse`` [horizon]).
 
 :func:`rollout_data` returns the figure data (arrays) and :func:`draw_grid` /
 :func:`draw_gates` draw it, so tests and notebooks can use the data without drawing.
@@ -34,7 +40,9 @@ import numpy as np
 
 import vsgjax
 from vsgjax.agents.dreamer import api
+from vsgjax.agents.dreamer.open_loop import ERROR_INPUTS, open_loop_errors
 from vsgjax.analysis.load import TrainedRun
+from vsgjax.loop.rundir import OPEN_LOOP_STEPS
 
 CONTEXT = 15
 HORIZON = 35
@@ -51,6 +59,9 @@ class RolloutData:
     ``gates`` [units, context + horizon] of 0/1 for the first sample (None without gates),
     ``gate_fraction`` [samples, context + horizon] the fraction of units open per step.
     ``rewards`` [1 + samples, context + horizon]: recorded, then predicted rewards.
+    ``obs_mse`` and ``reward_mse`` [horizon]: the error at each imagined step, averaged over
+    the samples shown (:func:`vsgjax.agents.dreamer.open_loop.open_loop_errors`; entry k - 1
+    is imagined step k, against episode step context + k - 1).
     """
 
     frames: np.ndarray
@@ -62,10 +73,14 @@ class RolloutData:
     episode: int
     step: int  # the checkpoint's env step
     model: str
+    obs_mse: np.ndarray | None = None
+    reward_mse: np.ndarray | None = None
 
     def arrays(self) -> dict[str, np.ndarray]:
         out = {"frames": self.frames, "rewards": self.rewards, "context": self.context,
                "horizon": self.horizon, "episode": self.episode, "step": self.step}
+        if self.obs_mse is not None:
+            out.update(obs_mse=self.obs_mse, reward_mse=self.reward_mse)
         if self.gates is not None:
             out.update(gates=self.gates, gate_fraction=self.gate_fraction)
         return out
@@ -133,8 +148,21 @@ def rollout_data(run: TrainedRun, episode: dict, *, context: int = CONTEXT, hori
         every = every.reshape(every.shape[:2] + (-1,))  # [samples, time, units]
         gates = every[0].T
         fraction = every.mean(-1)
+    # the same key and the episode once per sample: the errors of the samples drawn above
+    repeated = {k: np.repeat(np.asarray(episode[k][None, :length]), samples, 0)
+                for k in (*run.agent.obs_shape.keys, *ERROR_INPUTS)}
+    errors = jax.device_get(open_loop_errors(run.config, run.params.wm, repeated, key, context,
+                                             horizon))
     return RolloutData(frames, gates, fraction, rewards, context, horizon, episode_index,
-                       run.step, run.config.model.name)
+                       run.step, run.config.model.name, np.asarray(errors["obs_mse"]),
+                       np.asarray(errors["reward_mse"]))
+
+
+def errors_line(data: RolloutData) -> str:
+    """``open-loop MSE at imagined step 5: obs 0.0123, reward 0.0456; ...``."""
+    parts = [f"{k}: obs {data.obs_mse[k - 1]:.4g}, reward {data.reward_mse[k - 1]:.4g}"
+             for k in OPEN_LOOP_STEPS if k <= data.horizon]
+    return "open-loop MSE at imagined step " + "; ".join(parts)
 
 
 def tile(frames: np.ndarray, gap: int = GAP) -> np.ndarray:
@@ -237,6 +265,7 @@ def make_rollouts(logdir: str | Path, out: str | Path | None = None, *,
     npz = out / f"rollouts-ep{index}.npz"
     np.savez_compressed(npz, **data.arrays())
     written.append(npz)
+    say(errors_line(data))
     return data, written
 
 

@@ -2,9 +2,9 @@
 
 Reading runs (``runs``), the paper's numbers (``reference``), the grid (``binning``), what every
 figure reads (``context``), one module per figure kind (``curves``, ``bars``, ``grid``,
-``discovery``, ``summary``, ``rollouts``), the report (``assemble``) and its command line
-(``cli``). Each figure has a data function and a drawing function; the manual is
-docs/reports.md.
+``discovery``, ``summary``, ``versus``, ``open_loop``, ``rollouts``), the report
+(``assemble``) and its command line (``cli``). Each figure has a data function and a drawing
+function; the manual is docs/reports.md.
 """
 
 from experiments.report.assemble import Report, Section, build_report
@@ -20,6 +20,14 @@ from experiments.report.discovery import (
     discovery_markdown,
 )
 from experiments.report.grid import GridData, draw_grid, grid_data, grid_markdown
+from experiments.report.open_loop import (
+    ErrorLine,
+    OpenLoopData,
+    draw_open_loop,
+    open_loop_data,
+    open_loop_markdown,
+    read_open_loop,
+)
 from experiments.report.reference import (
     REFERENCE_DIR,
     Reference,
@@ -39,12 +47,13 @@ from experiments.report.summary import (
 )
 
 __all__ = [
-    "REFERENCE_DIR", "BarsData", "Context", "Curve", "CurvesData", "DiscoveryData", "GridData",
-    "Line", "Reference", "Report", "ReportWarning", "RolloutsData", "RunRecords", "Section",
-    "Stat", "SummaryData", "bars_data", "bars_markdown", "bin_of", "binned", "build_report",
-    "colour", "curves_data", "discovery_data", "discovery_latex", "discovery_markdown",
-    "draw_bars", "draw_curves", "draw_grid", "draw_summary", "grid_data", "grid_markdown",
-    "load_discovery_reference", "load_reference", "main", "missing_note", "paper_task",
-    "read_jsonl", "rollouts_data", "rollouts_markdown", "save_figure", "seed_stats",
+    "REFERENCE_DIR", "BarsData", "Context", "Curve", "CurvesData", "DiscoveryData", "ErrorLine",
+    "GridData", "Line", "OpenLoopData", "Reference", "Report", "ReportWarning", "RolloutsData",
+    "RunRecords", "Section", "Stat", "SummaryData", "bars_data", "bars_markdown", "bin_of",
+    "binned", "build_report", "colour", "curves_data", "discovery_data", "discovery_latex",
+    "discovery_markdown", "draw_bars", "draw_curves", "draw_grid", "draw_open_loop",
+    "draw_summary", "grid_data", "grid_markdown", "load_discovery_reference", "load_reference",
+    "main", "missing_note", "open_loop_data", "open_loop_markdown", "paper_task", "read_jsonl",
+    "read_open_loop", "rollouts_data", "rollouts_markdown", "save_figure", "seed_stats",
     "std_units", "step_label", "summary_data", "summary_markdown", "value_near",
 ]

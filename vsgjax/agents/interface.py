@@ -19,9 +19,15 @@ window starts before it (frame stacking). ``metrics`` are float scalars named
 ``<part>/<name>``. Actions are float32 ``[N, A]``: in [-1, 1], or one-hot when discrete.
 
 An agent with a world model may also offer ``open_loop_video(state, episode, key) -> uint8
-frames or None``, which the host loop writes beside the evaluation videos, and one whose
-latent states carry gates sets ``gated`` and offers ``gate_summary(state, batch) -> {name:
-float}``, which both loops log (:mod:`vsgjax.loop.gate_logging`).
+frames or None``, which the host loop writes beside the evaluation videos, and
+``open_loop_errors(state, episodes, key) -> {"obs_mse": [H], "reward_mse": [H]} or None``, its
+prediction error at each of H imagined steps after observing the start of a batch of episodes
+``[N, T]`` (jittable: the device loop computes it inside its compiled evaluation), which both
+loops log at every evaluation (``open_loop.jsonl``; the Dreamer family's is
+:func:`vsgjax.agents.dreamer.open_loop.open_loop_errors`); one whose latent states carry gates
+sets ``gated`` and offers ``gate_summary(state, batch) -> {name: float}``, which both loops log
+(:mod:`vsgjax.loop.gate_logging`). The loops look the optional hooks up with ``getattr``: an
+agent without a world model (DrQ-v2) offers none and writes none of these.
 """
 
 from __future__ import annotations

@@ -195,10 +195,31 @@ class DeviceProgram:
         return state, metrics
 
     def evaluate(self, agent_state, key: jax.Array, episodes: int) -> dict:
-        """``episodes`` episodes in parallel acting in ``eval`` mode -> returns ``[episodes]``."""
+        """``episodes`` episodes in parallel acting in ``eval`` mode -> ``{"return":
+        [episodes]}``, and for an agent with the ``open_loop_errors`` hook its open-loop errors
+        on those episodes, ``"open_loop": {"obs_mse": [H], "reward_mse": [H]}`` (computed here,
+        so only the 2 x H numbers leave the device; key ``fold_in(key, 1)``)."""
+        steps, records = self._eval_steps(agent_state, key, episodes)
+        out = {"return": steps["reward"].sum(0)}
+        errors = getattr(self.agent, "open_loop_errors", None)
+        if errors is not None:
+            result = errors(agent_state, records, jax.random.fold_in(key, 1))
+            if result is not None:
+                out["open_loop"] = result
+        return out
+
+    def eval_records(self, agent_state, key: jax.Array, episodes: int) -> dict:
+        """The records ``[episodes, E + 1]`` of :meth:`evaluate`'s episodes (the host format:
+        the reset step first), for the same key."""
+        return self._eval_steps(agent_state, key, episodes)[1]
+
+    def _eval_steps(self, agent_state, key: jax.Array, episodes: int) -> tuple[dict, dict]:
+        """(the steps' records ``[E, episodes]``, the episodes' records ``[episodes, E + 1]``)."""
         params = self.agent.acting_params(agent_state)
         reset_key, step_key = jax.random.split(key)
-        envs, carry, _ = self._reset(episodes, reset_key)
-        _, records = self._steps(params, jnp.asarray(False), "eval", (envs, carry),
-                                 jax.random.split(step_key, self.episode_steps))
-        return {"return": records["reward"].sum(0)}
+        envs, carry, first = self._reset(episodes, reset_key)
+        _, steps = self._steps(params, jnp.asarray(False), "eval", (envs, carry),
+                               jax.random.split(step_key, self.episode_steps))
+        records = jax.tree.map(lambda a, b: jnp.swapaxes(jnp.concatenate([a, b]), 0, 1),
+                               first, steps)
+        return steps, records

@@ -3,8 +3,9 @@
 
 Each call is one episode of every env of every seed with the updates due inside it; between
 calls the driver writes the same run directory as the host loop (no videos: the MJX tasks have
-no pixels). The checkpoint holds the whole program state (agent, device replay, PRNG key); the
-envs need none, since every call starts by resetting them.
+no pixels; the open-loop errors of an agent with a world model are computed inside the compiled
+evaluation, on its evaluation episodes). The checkpoint holds the whole program state (agent,
+device replay, PRNG key); the envs need none, since every call starts by resetting them.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from vsgjax.envs import make_device_task
 from vsgjax.loop.device_program import DeviceProgram, LoopState
 from vsgjax.loop.driver import (
     LoopDriver,
+    SeedEval,
     check_seed_group,
     non_finite,
     open_runs,
@@ -212,13 +214,17 @@ class DeviceTrainer(LoopDriver):
         self.progress.write(f"train env step {self.env_steps:>9}: updates "
                             f"{self.counters.updates}, return {returns}")
 
-    def eval_episodes(self) -> list[tuple[list[dict], None]]:
+    def eval_episodes(self) -> list[SeedEval]:
+        """Each seed's ``train.eval_episodes`` episodes of one compiled call, with its agent's
+        open-loop errors on them (:meth:`DeviceProgram.evaluate`)."""
         step, episodes = self.env_steps, self.config.train.eval_episodes
         keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(run.seed), step)
                           for run in self.runs])
         results = jax.device_get(self._evaluate(self.state.agent, keys))
-        return [([{"return": float(r), "length": self.program.episode_steps}
-                  for r in results["return"][i][:episodes]], None)
+        open_loop = results.get("open_loop")
+        return [SeedEval([{"return": float(r), "length": self.program.episode_steps}
+                          for r in results["return"][i][:episodes]], None,
+                         None if open_loop is None else take(open_loop, i))
                 for i in range(len(self.runs))]
 
     def checkpoint_of(self, index: int) -> tuple[dict, dict]:

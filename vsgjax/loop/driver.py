@@ -16,6 +16,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 from vsgjax.config import Config, ConfigError, to_dict
 from vsgjax.data import checkpoint
@@ -23,6 +24,17 @@ from vsgjax.loop.evaluator import summarize
 from vsgjax.loop.logger import Progress
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters, Schedule
+
+
+class SeedEval(NamedTuple):
+    """One seed's evaluation: its episodes' infos, its first episode as recorded (for the
+    videos; None where the loop records none), and its agent's open-loop errors on its
+    evaluation episodes (``{"obs_mse": [H], "reward_mse": [H]}``; None for an agent without the
+    ``open_loop_errors`` hook)."""
+
+    infos: list[dict]
+    recorded: dict | None = None
+    open_loop: dict | None = None
 
 
 class NonFiniteLossError(RuntimeError):
@@ -157,8 +169,8 @@ class LoopDriver:
         """Collect and make the updates due (advancing ``counters.agent_steps``/``updates``)."""
         raise NotImplementedError
 
-    def eval_episodes(self) -> list[tuple[list[dict], dict | None]]:
-        """Each seed's evaluation episode infos and its first recorded episode (or None)."""
+    def eval_episodes(self) -> list[SeedEval]:
+        """Each seed's evaluation (:class:`SeedEval`)."""
         raise NotImplementedError
 
     def checkpoint_of(self, index: int) -> tuple[dict, dict]:
@@ -223,20 +235,21 @@ class LoopDriver:
 
     def evaluate(self) -> None:
         """``train.eval_episodes`` episodes of each seed's actor mode -> scores, eval records,
-        the message, and videos when due."""
+        the open-loop errors (agents with a world model), the message, and videos when due."""
         step = self.env_steps
         results = self.eval_episodes()
         self.tick()
         clocks = {"wall_s": self.counters.wall_s, "cpu_s": self.counters.cpu_s}
-        for run, (infos, _) in zip(self.runs, results, strict=True):
+        for run, result in zip(self.runs, results, strict=True):
+            infos = result.infos
             summary = {**summarize(infos), **clocks}
-            run.record_eval(step, infos, summary)
+            run.record_eval(step, infos, summary, result.open_loop)
             self.progress.write(f"{self._prefix(run)}eval  env step {step:>9}: return "
                                 f"{summary['return']:.3f} ± {summary['return_std']:.3f} over "
                                 f"{len(infos)} episodes")
             self._show("eval", {run.seed: summary["return"]})
         self.counters.last_eval = step
-        recorded = [episode for _, episode in results]
+        recorded = [result.recorded for result in results]
         if recorded[0] is not None and self.schedule.video_due():
             self.schedule.video_done()
             self.videos(step, recorded)

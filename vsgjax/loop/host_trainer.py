@@ -14,6 +14,7 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from vsgjax.agents import make_agent
 from vsgjax.agents.acting import acting_policy
@@ -25,6 +26,7 @@ from vsgjax.data.replay import Replay
 from vsgjax.episode_keys import IMAGE_KEY
 from vsgjax.loop.driver import (
     LoopDriver,
+    SeedEval,
     check_seed_group,
     group_label,
     non_finite,
@@ -274,14 +276,23 @@ class HostTrainer(LoopDriver):
                        for short, values in shown.items())]
             self.progress.write(f"train env step {self.env_steps:>9}: " + ", ".join(parts))
 
-    def eval_episodes(self) -> list[tuple[list[dict], dict]]:
-        """``train.eval_episodes`` episodes of each seed's actor mode in its eval envs."""
+    def eval_episodes(self) -> list[SeedEval]:
+        """``train.eval_episodes`` episodes of each seed's actor mode in its eval envs; the
+        first is recorded, and an agent with the ``open_loop_errors`` hook (a world model) gives
+        its open-loop errors on it (key: ``fold_in`` of the seed's evaluation key, so the
+        seeds' key streams are the same with and without the hook)."""
         keys, params = self._next_keys(), self._acting_params(self.state)
+        errors = getattr(self.agent, "open_loop_errors", None)
         results = []
         for i, run in enumerate(self.runs):
             infos, episodes = run.evaluator.run(take(params, i),
                                                 self.config.train.eval_episodes, keys[i])
-            results.append((infos, episodes[0]))
+            open_loop = None
+            if errors is not None:
+                batch = {k: np.asarray(v)[None] for k, v in episodes[0].items()}
+                open_loop = errors(take(self.state, i), batch, jax.random.fold_in(keys[i], 1))
+                open_loop = None if open_loop is None else jax.device_get(open_loop)
+            results.append(SeedEval(infos, episodes[0], open_loop))
         return results
 
     def videos(self, step: int, recorded: list[dict]) -> None:

@@ -5,6 +5,9 @@
     scores.jsonl         the learning curve ``{"task", "method", "seed", "xs", "ys", "wall_s",
                          "cpu_s"}`` (the run's wall and CPU seconds at each evaluation)
     eval_episodes.jsonl  one line per evaluation episode ``{"step", "episode", **info}``
+    open_loop.jsonl      one line per evaluation of an agent with a world model: its open-loop
+                         prediction errors per imagined step ``{"step", "obs_mse": [35],
+                         "reward_mse": [35]}`` (:func:`open_loop_record`)
     checkpoints/         ``ckpt-<env step>.ckpt`` (:mod:`vsgjax.data.checkpoint`); corrupt
                          ones are moved to ``checkpoints/corrupt/``
     episodes/            every finished training episode as MCAP (:mod:`vsgjax.data.replay`)
@@ -45,10 +48,13 @@ CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.jsonl"
 SCORES_FILE = "scores.jsonl"
 EVAL_EPISODES_FILE = "eval_episodes.jsonl"
+OPEN_LOOP_FILE = "open_loop.jsonl"
 CHECKPOINTS_DIR = "checkpoints"
 EPISODES_DIR = "episodes"
 VIDEOS_DIR = "videos"
 KEEP_CHECKPOINTS = 3
+OPEN_LOOP_STEPS = (5, 15, 35)  # imagined steps whose errors the eval record holds as scalars
+OPEN_LOOP_ERRORS = ("obs_mse", "reward_mse")
 # the ``method`` of scores.jsonl: the names of the paper's curves
 
 def json_safe(record: dict) -> dict:
@@ -61,6 +67,30 @@ def episode_records(infos: list[dict], step: int) -> list[dict]:
     """One JSON-able record per evaluation episode: ``{"step", "episode", **info}``."""
     return [json_safe({"step": step, "episode": index, **info})
             for index, info in enumerate(infos)]
+
+
+def open_loop_record(step: int, errors: dict) -> dict:
+    """The ``open_loop.jsonl`` line of one evaluation: ``{"step": env step, "obs_mse": [H],
+    "reward_mse": [H]}``, entry ``k - 1`` the error at imagined step ``k`` (H = 35, fewer for
+    short episodes: :func:`vsgjax.agents.dreamer.open_loop.shortened`); non-finite values
+    are null."""
+    record: dict = {"step": int(step)}
+    for name in OPEN_LOOP_ERRORS:
+        values = [float(v) for v in np.asarray(errors[name], np.float64).reshape(-1)]
+        record[name] = [v if math.isfinite(v) else None for v in values]
+    return record
+
+
+def open_loop_scalars(errors: dict) -> dict[str, float]:
+    """The eval record's scalars of an evaluation's open-loop errors: ``open_loop/obs_mse_5``,
+    ``..._15``, ``..._35`` and the same of ``reward_mse`` (the imagined steps of
+    ``OPEN_LOOP_STEPS`` that the errors reach)."""
+    scalars = {}
+    for name in OPEN_LOOP_ERRORS:
+        values = np.asarray(errors[name], np.float64).reshape(-1)
+        scalars.update({f"open_loop/{name}_{k}": float(values[k - 1])
+                        for k in OPEN_LOOP_STEPS if k <= len(values)})
+    return scalars
 
 
 class RunDir:
@@ -180,6 +210,7 @@ class RunWriter(RunDir):
         self.logger = Logger(self.logdir, resume_step=env_steps, metrics_file=METRICS_FILE,
                              video_dir=VIDEOS_DIR)
         truncate_metrics(self.path(EVAL_EPISODES_FILE), env_steps)
+        truncate_metrics(self.path(OPEN_LOOP_FILE), env_steps)
         self.write_scores()
 
     def write_scores(self) -> None:
@@ -210,11 +241,21 @@ class RunWriter(RunDir):
         self.window, self.window_episodes = [], []
         return record
 
-    def record_eval(self, step: int, infos: list[dict], summary: dict) -> None:
-        self.logger.scalars(step, summary, prefix="eval")
+    def record_eval(self, step: int, infos: list[dict], summary: dict,
+                    open_loop: dict | None = None) -> None:
+        """One evaluation: its ``eval/*`` record (with the ``open_loop/*`` scalars of
+        ``open_loop``, the agent's open-loop errors, when given), its episodes, its
+        ``open_loop.jsonl`` line, and the scores."""
+        scalars = dict(summary)
+        if open_loop is not None:
+            scalars.update(open_loop_scalars(open_loop))
+        self.logger.scalars(step, scalars, prefix="eval")
         with open(self.path(EVAL_EPISODES_FILE), "a") as file:
             for record in episode_records(infos, step):
                 file.write(json.dumps(record) + "\n")
+        if open_loop is not None:
+            with open(self.path(OPEN_LOOP_FILE), "a") as file:
+                file.write(json.dumps(open_loop_record(step, open_loop)) + "\n")
         self.scores["xs"].append(float(step))
         self.scores["ys"].append(summary["return"])
         for clock in ("wall_s", "cpu_s"):

@@ -27,7 +27,7 @@ import optax
 
 from vsgjax.agents.dreamer import behaviour as bhv
 from vsgjax.agents.dreamer.gate_statistics import gate_statistics
-from vsgjax.agents.dreamer.open_loop import open_loop_video
+from vsgjax.agents.dreamer.open_loop import open_loop_video, shortened_open_loop_errors
 from vsgjax.agents.dreamer.optim import agent_optimizers
 from vsgjax.agents.dreamer.world_model import WorldModel
 from vsgjax.agents.interface import ReplayNeeds, check_mode
@@ -181,6 +181,13 @@ class DreamerAgent:
         """The run's open-loop prediction video of an episode (uint8 frames), or None for an
         episode without images (:mod:`vsgjax.agents.dreamer.open_loop`)."""
         return open_loop_video(self.config, state.params["wm"], episode, key)
+
+    def open_loop_errors(self, state: AgentState, episodes: dict, key: jax.Array):
+        """The world model's open-loop prediction errors on a batch of episodes ``[N, T]``:
+        ``{"obs_mse": [H], "reward_mse": [H]}`` per imagined step after 15 observed ones, H =
+        35 (fewer for episodes shorter than 50 steps), or None below 4 steps (jittable;
+        :func:`vsgjax.agents.dreamer.open_loop.open_loop_errors`)."""
+        return shortened_open_loop_errors(self.config, state.params["wm"], episodes, key)
 
     # --- acting --------------------------------------------------------------------------------
 
