@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 
 from vsgjax.registry.agents import DEFAULT_MODEL
-from vsgjax.registry.tasks import DEFAULT_TASK, FAMILIES
+from vsgjax.registry.tasks import DEFAULT_TASK, family_of
 
 SIZES = ("paper", "small", "cpu", "debug")
 ALIGNMENTS = ("release", "next_state")  # ac.alignment: see vsgjax/agents/dreamer/behaviour.py
@@ -176,7 +176,7 @@ class TrainConfig:
 
 @dataclass(frozen=True)
 class Config:
-    domain: str = FAMILIES[DEFAULT_TASK.partition("_")[0]].preset_column
+    domain: str = family_of(DEFAULT_TASK).preset_column
     size: str = "paper"
     model: ModelConfig = field(default_factory=ModelConfig)
     wm: WorldModelConfig = field(default_factory=WorldModelConfig)

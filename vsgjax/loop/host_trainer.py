@@ -305,10 +305,9 @@ class HostTrainer(LoopDriver):
                                     f"have no image (keys {', '.join(self.agent.obs_shape.keys)})")
                 self._said_no_videos = True
             return
-        keys = self._next_keys()
+        keys, open_loop = self._next_keys(), getattr(self.agent, "open_loop_video", None)
         for i, (run, episode) in enumerate(zip(self.runs, recorded, strict=True)):
             run.logger.video("eval", step, episode[IMAGE_KEY])
-            open_loop = getattr(self.agent, "open_loop_video", None)
             frames = open_loop and open_loop(take(self.state, i), episode, keys[i])
             if frames is not None:
                 run.logger.video("open_loop", step, frames, fps=10)
