@@ -57,7 +57,7 @@ def test_missing_equals_sign_is_an_error():
 
 def test_overrides_are_typed():
     config = make_config(overrides=["wm.kl_scale=0.3", "model.deter=512", "wm.kl_masked=true",
-                                    "train.steps=1e6", "model.gate_mode=threshold"])
+                                    "train.steps=1_000_000", "model.gate_mode=threshold"])
     assert config.wm.kl_scale == 0.3
     assert config.model.deter == 512
     assert config.wm.kl_masked is True

@@ -47,10 +47,11 @@ BAD_VALUES = {
     "train.prefill=-1": "config key 'train.prefill' got -1; valid: >= 0",
     "train.length=1": "config key 'train.length' got 1; valid: >= 2",
     "train.seed=-1": "config key 'train.seed' got -1; valid: [0, 1073741824]",
-    "wm.lr=nan": "config key 'wm.lr' got nan; valid: > 0",
+    "wm.lr=nan": "config key 'wm.lr' got nan, which is not a finite number; valid: > 0",
     "wm.gate_kappa=1": "config key 'wm.gate_kappa' got 1.0; valid: (0, 1)",
     "ac.gamma=1.5": "config key 'ac.gamma' got 1.5; valid: [0, 1]",
-    "model.gate_bias=inf": "config key 'model.gate_bias' got inf; valid: any finite number",
+    "model.gate_bias=inf": ("config key 'model.gate_bias' got inf, which is not a finite number; "
+                            "valid: any finite number"),
     "env.num_envs=0": "config key 'env.num_envs' got 0; valid: >= 1",
     "ac.horizon=1": "'ac.horizon' got 1 with ac.alignment=release, which imagines horizon - 1 "
                     "steps; valid: >= 2 (or ac.alignment=next_state)",

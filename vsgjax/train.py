@@ -25,6 +25,7 @@ from vsgjax.envs import TaskError, make_device_task, parse_task
 from vsgjax.loop.device_trainer import DeviceTrainer
 from vsgjax.loop.driver import LoopDriver, NonFiniteLossError, group_label
 from vsgjax.loop.host_trainer import HostTrainer
+from vsgjax.loop.rundir import EPISODES_DIR, RunWriter
 from vsgjax.loop.which_loop import resolve_loop
 from vsgjax.registry.agents import DEFAULT_MODEL
 from vsgjax.registry.tasks import DEFAULT_TASK, VECTOR, family_of, patterns
@@ -123,6 +124,9 @@ def build_configs(args: argparse.Namespace, seeds: list[int],
 def seed_logdirs(args: argparse.Namespace, seeds: list[int]) -> list[Path]:
     """Each seed's log directory: ``--logdir`` with ``{seed}`` filled in (required for several
     seeds), by default ``runs/<task>-<model>-s<seed>``."""
+    if args.logdir is not None and not args.logdir.strip():
+        raise ConfigError(f"--logdir {args.logdir!r} is empty; give a directory, or leave "
+                          f"--logdir out for runs/{args.task}-{args.model}-s{{seed}}")
     pattern = args.logdir or f"runs/{args.task}-{args.model}-s{{seed}}"
     if len(seeds) > 1 and "{seed}" not in pattern:
         raise ConfigError(f"--logdir {pattern!r} must contain {{seed}} when training several "
@@ -155,6 +159,24 @@ def make_trainer(configs: list[Config], logdirs: list[Path], *, progress: bool =
                                               restart=restart)
 
 
+def set_aside_lines(runs: list[RunWriter]) -> list[str]:
+    """What opening the run directories moved to ``previous/`` (nothing is deleted)."""
+    lines = []
+    for run in runs:
+        if run.moved_to is not None:
+            lines.append(f"--restart: moved the old contents of {run.logdir} to {run.moved_to}")
+        if run.attempt_moved_to is not None:
+            lines.append(f"{run.logdir} held an attempt killed before its first checkpoint "
+                         f"and evaluation: moved what it wrote to {run.attempt_moved_to}; "
+                         "starting over")
+        if run.episodes_moved_to is not None:
+            moved = len(list((run.episodes_moved_to / EPISODES_DIR).glob("*.mcap")))
+            lines.append(f"{run.logdir}: moved {moved} episode file(s) written after "
+                         f"{run.checkpoint_path.name} by the interrupted run to "
+                         f"{run.episodes_moved_to / EPISODES_DIR} (not in the replay)")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
@@ -183,10 +205,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     try:
-        for run in trainer.runs:
-            if run.moved_to is not None:
-                print(f"--restart: moved the old contents of {run.logdir} to {run.moved_to}",
-                      flush=True)
+        for line in set_aside_lines(trainer.runs):
+            print(line, flush=True)
         print(trainer.describe(), flush=True)
         line = trainer.parallel_line()
         if line:

@@ -30,8 +30,8 @@ class Status:
     * ``done``: finished (skipped by a launch);
     * ``partial``: a training run with a checkpoint short of its steps (a launch resumes it);
     * ``new``: nothing yet (a launch starts it);
-    * ``results only``: evaluations short of its steps without a checkpoint or episodes to
-      resume from (never launched: training would start over and replace them);
+    * ``results only``: evaluations short of its steps without a checkpoint to resume
+      from (never launched: training would start over and replace them);
     * ``config differs``: a log directory of another config (never launched or touched);
     * ``blocked``: an evaluate / rollouts job whose source run has not finished training.
     """
@@ -117,12 +117,12 @@ def train_status(run: Run, logdir: Path) -> Status:
         return Status("done", ckpt, run.steps, score)
     if ckpt is not None:
         return Status("partial", step, run.steps, score, f"resumes from env step {ckpt}")
-    evaluated = RunDir(logdir).results_alone_to()
+    evaluated = RunDir(logdir).evaluated_without_checkpoint()
     if evaluated is not None:
         if evaluated >= run.steps:
             return Status("done", evaluated, run.steps, score, "its checkpoints are not here")
         return Status("results only", evaluated, run.steps, score,
-                      "no checkpoint or episodes to resume from; vsgjax.train --restart "
+                      "no checkpoint to resume from; vsgjax.train --restart "
                       "trains it again")
     return Status("new", step, run.steps, score)
 

@@ -12,7 +12,7 @@ from vsgjax.envs.dmc import DMCEnv
 
 
 def env_config(task, **changes):
-    return dataclasses.replace(make_config(task, size="debug").env, **changes)
+    return dataclasses.replace(make_config(task, size="paper").env, **changes)
 
 
 @pytest.mark.parametrize("task, parsed", [

@@ -459,7 +459,7 @@ def test_kept_results_without_checkpoints_are_done_or_left_alone(definitions, tm
     assert launch.main(launch_args("two", definitions, tmp_path, "--backend", "local")) == 1
     out = capsys.readouterr().out
     assert "skipped: finished before this launch" in out
-    assert "no checkpoint or episodes to resume from; vsgjax.train --restart" in out
+    assert "no checkpoint to resume from; vsgjax.train --restart" in out
     assert out.splitlines()[-1] == "two: 2 jobs: 1 done, 1 results only"
     assert snapshot(tmp_path) == before  # nothing launched, nothing written
 

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from tests.support.overrides import replaced
 from vsgjax import train
 from vsgjax.config import ConfigError, make_config
 from vsgjax.data import checkpoint
@@ -34,7 +35,7 @@ SHORT = ["env.time_limit=40", "env.num_envs=2", "train.length=8", "train.batch=3
 
 
 def make_loop(*overrides: str) -> DeviceProgram:
-    config = make_config(TASK, "vsg", "debug", [*SHORT, *overrides])
+    config = make_config(TASK, "vsg", "debug", replaced(SHORT, *overrides))
     env = config.env
     return DeviceProgram(config, make_mjx_task(TASK, env.action_repeat, env.time_limit))
 
@@ -147,7 +148,7 @@ def test_loop_and_task_mismatches_are_errors_that_say_why(capsys, tmp_path):
 
 def command(logdir: Path, *overrides: str) -> list[str]:
     return [sys.executable, "-m", "vsgjax.train", "--task", TASK, "--size", "debug",
-            "--logdir", str(logdir), "--no-progress", *SHORT, *overrides]
+            "--logdir", str(logdir), "--no-progress", *replaced(SHORT, *overrides)]
 
 
 @pytest.mark.slow

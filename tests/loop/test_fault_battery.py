@@ -6,7 +6,9 @@ SIGKILL its own process at its n-th call, then calls ``vsgjax.train.main``; noth
 package knows about it. The kill points (:data:`KILL_POINTS`), per loop:
 
 - ``prefill``: host loop: while writing the 2nd episode file of the prefill (half of its
-  temporary file on disk); device loop: in the 2nd (prefill) call of the compiled program;
+  temporary file on disk); device loop: in the 2nd (prefill) call of the compiled program.
+  The rerun starts over, the killed attempt's files moved to ``previous/``, and ends its
+  prefill as the uninterrupted run does (the same env step and replay);
 - ``update``: host loop: in the 4th update (its result computed, not returned); device loop:
   in the 2nd training call of the compiled program (the updates run inside it);
 - ``checkpoint``: while writing the 2nd checkpoint (half of its temporary file on disk);
@@ -15,7 +17,9 @@ package knows about it. The kill points (:data:`KILL_POINTS`), per loop:
 
 Each resumed run must finish (exit 0) with ``scores.jsonl`` holding every evaluation once on
 the uninterrupted run's grid, every episode file complete (the temporary file of a killed
-write never read), the replay the resume reports equal to the episode files on disk (host),
+write never read), the replay the resume reports equal to the checkpoint's episodes and
+``episodes/`` holding as many as the uninterrupted run's (those written after the checkpoint
+moved to ``previous/``, not fed to the resumed run),
 ``metrics.jsonl`` strictly increasing per kind of record, and a final checkpoint that loads.
 The device loop resumes exactly: its scores, metrics and final checkpoint must equal the
 uninterrupted run's.
@@ -64,6 +68,7 @@ CLOCKS = ("wall_s", "cpu_s", "steps_per_s")  # record keys that differ between r
 # bbs_basic, 104 env steps per episode (27 stored steps), chunks of 40 env steps: prefill
 # ends at 240 with 2 episodes; updates 1-2 at 240, then one per chunk (6 in all); evaluations
 # at 240, 320, 400; checkpoints at 240 (after update 2), 320 (4) and 400 (6).
+HOST_EPISODE = (104, 27)  # env steps, stored steps
 HOST = ("bbs_basic", ["env.time_limit=100", "train.prefill=240", "train.train_every=10",
                       "train.steps=400", "train.eval_every=80", "train.ckpt_every=2",
                       "train.video_every=100000"])
@@ -451,24 +456,31 @@ HOST_REPLAY = re.compile(r"replay (\d+) steps in (\d+) episodes")
 
 
 def check_resume_line(scenario: Scenario) -> str:
-    """The resumed run says where it resumed from; the host loop's replay is every complete
-    episode file the killed run left (no more, no fewer steps)."""
+    """The resumed run says where it resumed from, and what of the killed run it moved to
+    previous/: a run killed before its first checkpoint starts over as a new one, its files
+    moved aside; a resumed host loop's replay is the episodes of its checkpoint, those the
+    killed run wrote after it moved aside."""
     kill, out, at_kill = scenario.kill, scenario.resumed.out, scenario.at_kill
     if kill.resumes_from is None:
-        line = next(line for line in out.splitlines() if line.startswith("starting a new run"))
-        if kill.loop == "host":
-            assert line == (f"starting a new run ({len(at_kill['episodes'])} episodes already "
-                            "in episodes/)")
-        return line
+        assert f"{scenario.logdir} held an attempt killed before its first checkpoint" in out
+        return next(line for line in out.splitlines() if line.startswith("starting a new run"))
     match = RESUME.search(out)
     assert match, out[-2000:]
     line = out[match.start():].splitlines()[0]
     assert int(match.group(1)) == int(match.group(2)) == kill.resumes_from
     if kill.loop == "host":
         steps, episodes = map(int, HOST_REPLAY.search(line).groups())
-        assert episodes == len(at_kill["episodes"])
-        assert steps == sum(length for _, length in at_kill["episodes"])
+        env_steps, stored = HOST_EPISODE
+        assert episodes == kill.resumes_from // env_steps and steps == episodes * stored
+        later = len(at_kill["episodes"]) - episodes
+        if later:
+            assert (f"moved {later} episode file(s) written after ckpt-"
+                    f"{kill.resumes_from:012d}.ckpt by the interrupted run") in out
     return line
+
+
+def prefill_line(run: Run) -> str:
+    return next(line for line in run.out.splitlines() if line.startswith("prefill done"))
 
 
 @functools.cache
@@ -558,7 +570,13 @@ def test_sigkill_then_resume_finishes_with_every_evaluation_once(batteries, kill
     state = check_finished(scenario.logdir, scenario.resumed)
     # the killed write's temporary file was never read as data, and the resumed run removed it
     assert state["temp_files"] == []
-    assert set(at_kill["episodes"]) <= set(state["episodes"])  # still there, whole
+    # nothing lost: what the killed run wrote is in episodes/ or moved to previous/; nothing
+    # mixed: episodes/ holds as many episodes as the uninterrupted run's
+    moved = {p.name for p in (scenario.logdir / "previous").rglob("episodes/*.mcap")}
+    assert {name for name, _ in at_kill["episodes"]} <= {n for n, _ in state["episodes"]} | moved
+    assert len(state["episodes"]) == len(disk_state(battery.reference)["episodes"])
+    if kill.resumes_from is None:  # started over: prefill ends as the uninterrupted run's
+        assert prefill_line(scenario.resumed) == prefill_line(battery.reference_run)
     restored = checkpoint.restore(scenario.logdir / "checkpoints", restore_target(kill.loop))
     assert restored.step == FINAL_STEP
     if kill.loop == "host":

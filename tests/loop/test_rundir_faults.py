@@ -21,13 +21,18 @@ import pytest
 import bbs
 import vsgjax
 from experiments import launch, report
+from tests.support.overrides import replaced
 from vsgjax import evaluate, train
 from vsgjax.config import ConfigError, make_config
 from vsgjax.data import checkpoint
 from vsgjax.data.replay import EpisodeStore
 from vsgjax.data.replay.store import read_episode
+from vsgjax.envs import make_device_task
+from vsgjax.loop.device_program import DeviceProgram
+from vsgjax.loop.host_trainer import first_update
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.rundir_guard import LOCK_FILE, PREVIOUS_DIR, RunDirError
+from vsgjax.registry.tasks import family_of
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURE = ROOT / "tests" / "fixtures" / "rundir_v1" / "bbs_basic-vsg-debug"
@@ -49,7 +54,8 @@ def config(*overrides: str):
 
 
 def run_train(capsys, logdir: Path, *args: str) -> tuple[int, str, str]:
-    code = train.main([*FLAGS, "--logdir", str(logdir), *OVERRIDES, *args])
+    """``vsgjax.train`` with FLAGS and OVERRIDES, of which ``args`` replace those it gives."""
+    code = train.main([*FLAGS, "--logdir", str(logdir), *replaced(OVERRIDES, *args)])
     out, err = capsys.readouterr()
     return code, out, err
 
@@ -139,7 +145,7 @@ def test_a_run_with_a_corrupt_newest_checkpoint_resumes_from_the_one_before(old_
 def test_episodes_of_another_config_without_a_checkpoint_are_refused(old_run, capsys):
     shutil.rmtree(old_run / "checkpoints")
     before = snapshot(old_run)
-    code, _, err = run_train(capsys, old_run, "env.time_limit=400")
+    code, _, err = run_train(capsys, old_run, "env.time_limit=400", "train.steps=1000")
     assert code == 2
     line = one_line_error(err)
     assert (f"{old_run} holds a run with a different config (env.time_limit: 200 -> 400); "
@@ -147,18 +153,91 @@ def test_episodes_of_another_config_without_a_checkpoint_are_refused(old_run, ca
     assert snapshot(old_run) == before
 
 
-def test_evaluations_without_a_checkpoint_or_episodes_are_refused(old_run, capsys):
-    """Committed results (scores and logs, their checkpoints and episodes not kept) are never
-    trained over: that would start the run over and replace them."""
+@pytest.mark.parametrize("episodes_kept", [False, True])
+def test_evaluations_without_a_checkpoint_are_refused(old_run, capsys, episodes_kept):
+    """Committed results (scores and logs, their checkpoints not kept), or a run whose
+    checkpoints/ was deleted, are never trained over: that would start the run over and
+    replace them."""
     shutil.rmtree(old_run / "checkpoints")
-    shutil.rmtree(old_run / "episodes")
+    if not episodes_kept:
+        shutil.rmtree(old_run / "episodes")
     before = snapshot(old_run)
-    code, _, err = run_train(capsys, old_run)
+    code, _, err = run_train(capsys, old_run, "train.steps=400")
     assert code == 2
     line = one_line_error(err)
-    assert (f"{old_run} holds the evaluations of a run to env step 320 but no checkpoint or "
-            "episodes to resume it from; rerun with --restart") in line
+    assert (f"{old_run} holds the evaluations of a run to env step 320 but no checkpoint to "
+            "resume it from (there is no checkpoints/); nothing was changed; rerun with "
+            "--restart") in line
     assert snapshot(old_run) == before
+
+
+def test_an_attempt_killed_before_its_first_checkpoint_is_moved_aside(old_run):
+    """What a first attempt wrote before any checkpoint or evaluation (episodes, log lines) is
+    moved to previous/, so the new run starts as an uninterrupted one; nothing is deleted."""
+    shutil.rmtree(old_run / "checkpoints")
+    (old_run / "scores.jsonl").write_text('{"xs": [], "ys": []}\n')
+    before = snapshot(old_run)
+    run = RunWriter(config(), old_run)
+    try:
+        assert run.attempt_moved_to.parent == old_run / PREVIOUS_DIR
+        assert snapshot(run.attempt_moved_to) == before
+        assert not run.episode_paths() and not (old_run / "metrics.jsonl").exists()
+    finally:
+        run.unlock()
+    fresh = RunWriter(config(), old_run)  # an empty attempt moves nothing
+    assert fresh.attempt_moved_to is None
+    fresh.unlock()
+
+
+def test_episodes_written_after_the_checkpoint_are_moved_aside_on_resume(old_run, capsys):
+    """The fixture's checkpoint (env step 320) counts its one episode; a later one, written by
+    the interrupted run, goes to previous/ and not into the resumed run's replay."""
+    (kept,) = sorted((old_run / "episodes").glob("*.mcap"))
+    later = old_run / "episodes" / f"29991231T000000000000-00000000-{kept.stem[-2:]}.mcap"
+    shutil.copy(kept, later)
+    code, out, err = run_train(capsys, old_run, "train.steps=320")
+    assert code == 0, err
+    assert "replay 52 steps in 1 episodes" in out
+    assert (f"{old_run}: moved 1 episode file(s) written after {CKPT} by the interrupted run "
+            f"to {old_run / PREVIOUS_DIR}") in out
+    assert [p.name for p in (old_run / "episodes").glob("*.mcap")] == [kept.name]
+    assert [p.name for p in (old_run / PREVIOUS_DIR).glob("*/episodes/*.mcap")] == [later.name]
+
+
+def test_a_torn_last_log_line_is_reported_once_naming_file_and_line(old_run, capsys):
+    metrics = old_run / "metrics.jsonl"
+    lines = metrics.read_text().splitlines()
+    metrics.write_text("\n".join(lines) + '\n{"step": 320, "eval/ret')
+    with pytest.warns(UserWarning) as caught:
+        code, _, err = run_train(capsys, old_run, "train.steps=320")
+    assert code == 0, err
+    torn = [str(w.message) for w in caught if "cut short" in str(w.message)]
+    assert torn == [f"{metrics}, line {len(lines) + 1}: dropped a record cut short by a killed "
+                    """run (23 characters: '{"step": 320, "eval/ret')"""]
+    assert metrics.read_text().splitlines() == lines
+
+
+def test_a_finished_run_asked_for_fewer_steps_says_so(old_run, capsys):
+    scores = (old_run / "scores.jsonl").read_text()
+    code, out, err = run_train(capsys, old_run, "train.steps=300")
+    assert code == 0, err
+    assert ("nothing to train: the run is already at env step 320, evaluated and saved "
+            "(train.steps=300); a higher train.steps trains it further") in out
+    assert (old_run / "scores.jsonl").read_text() == scores
+    assert [p.name for _, p in checkpoint.list_checkpoints(old_run / "checkpoints")] == [CKPT]
+
+
+def test_a_video_is_written_whole_and_a_killed_ones_temporary_file_removed(tmp_path):
+    run = RunWriter(config(), tmp_path)
+    run.open_logs(0)
+    path = run.logger.video("eval", 200, np.zeros((4, 64, 64, 3), np.uint8))
+    run.close()
+    assert [p.name for p in path.parent.iterdir()] == [path.name] and path.stat().st_size
+    left = path.parent / f".{path.name}.abc123{checkpoint.TEMP_SUFFIX}"
+    left.write_bytes(b"half a video")
+    save_checkpoints(tmp_path, [200])  # a run to resume: its directory is kept
+    RunWriter(config(), tmp_path).unlock()
+    assert not left.exists() and path.exists()
 
 
 LOCKER = ("import sys, time; from pathlib import Path; "
@@ -283,7 +362,7 @@ def test_train_reports_a_failing_write_in_one_line(old_run, capsys, monkeypatch)
 
     monkeypatch.setattr(checkpoint, "save", failing_save)
     before = (old_run / "checkpoints" / CKPT).read_bytes()
-    code, _, err = run_train(capsys, old_run, "train.steps=320")
+    code, _, err = run_train(capsys, old_run, "train.steps=360")  # one more chunk, then save
     assert code == 1 and one_line_error(err) == "error: cannot write x.ckpt: No space left"
     assert (old_run / "checkpoints" / CKPT).read_bytes() == before
 
@@ -300,6 +379,21 @@ BAD_TRAIN_ARGS = {
     ("train.eval_episodes=0",): "config key 'train.eval_episodes' got 0; valid: >= 1",
     ("train.prefill=-1",): "config key 'train.prefill' got -1; valid: >= 0",
     ("--seed", "-1"): "--seed -1: valid: an integer in [0, 1073741824]",
+    ("train.steps=100",): "train.steps=100 ends before the run's first update, at env step "
+                          "240 (prefill ends at env step 120 (train.prefill=100); the first "
+                          "episodes end at env step 240 (51 agent steps with "
+                          "env.time_limit=200, env.action_repeat=4, env.num_envs=1)), so it "
+                          "would train nothing; the smallest train.steps that trains is 201",
+    ("train.batch=100000",): "train.batch=100000 sequences of train.length=10 steps are more "
+                             "steps than the replay ever holds (train.replay_capacity=10000); "
+                             "valid: train.batch <= 1000",
+    ("train.steps=600", "train.steps=800"): "config key 'train.steps' is given twice "
+                                            "('train.steps=600' and 'train.steps=800')",
+    ("train.steps=1e5",): "config key 'train.steps' wants an integer, got '1e5' (a float's "
+                          "notation); write 100000",
+    ("wm.lr=inf",): "config key 'wm.lr' got inf, which is not a finite number; valid: > 0",
+    ("wm.kl_scale=nan",): "config key 'wm.kl_scale' got nan, which is not a finite number",
+    ("--logdir", ""): "--logdir '' is empty; give a directory, or leave --logdir out",
 }
 
 
@@ -307,6 +401,29 @@ BAD_TRAIN_ARGS = {
 def test_a_bad_value_is_one_line_naming_it_and_nothing_is_written(args, tmp_path, capsys):
     code, _, err = run_train(capsys, tmp_path / "run", *args)
     assert code == 2 and BAD_TRAIN_ARGS[args] in one_line_error(err)
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("task", ["bbs_basic", "dmc_walker_walk", "atari_pong",
+                                  "mjx_cartpole_swingup"])
+@pytest.mark.parametrize("model", ["vsg", "drqv2"])
+def test_the_debug_size_trains_within_its_steps_on_every_family(task, model):
+    if task.startswith("atari") and model == "drqv2":
+        pytest.skip("DrQ-v2 acts in continuous action spaces only")
+    config = make_config(task, model, "debug")
+    if family_of(task).on_device:
+        first = DeviceProgram(config, make_device_task(config.env)).first_update()
+    else:
+        first = first_update(config)
+    assert first.smallest_steps <= config.train.steps, first
+
+
+def test_a_train_every_longer_than_a_device_episode_is_one_line(tmp_path, capsys):
+    code = train.main(["--task", "mjx_cartpole_swingup", "--size", "debug", "--logdir",
+                       str(tmp_path / "run"), "train.train_every=101"])
+    _, err = capsys.readouterr()
+    assert code == 2 and ("train.train_every=101 is longer than an episode of "
+                          "mjx_cartpole_swingup (100 agent steps)") in one_line_error(err)
     assert not (tmp_path / "run").exists()
 
 

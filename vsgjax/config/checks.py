@@ -94,7 +94,8 @@ def check_config(config: Config) -> None:
     """Raise ConfigError for the first value out of its range or in conflict with the task."""
     for key, value in numeric_values(config).items():
         if key in RANGES and value not in RANGES[key]:
-            raise ConfigError(f"config key {key!r} got {value!r}; valid: {RANGES[key]}")
+            finite = "" if math.isfinite(value) else ", which is not a finite number"
+            raise ConfigError(f"config key {key!r} got {value!r}{finite}; valid: {RANGES[key]}")
     _check_horizon(config)
     _check_sequences(config)
     _check_starts(config)
@@ -145,6 +146,12 @@ def _check_sequences(config: Config) -> None:
     if train.replay_capacity < train.length:
         raise ConfigError(f"train.replay_capacity={train.replay_capacity} holds no sequence "
                           f"of train.length={train.length} steps; valid: >= {train.length}")
+    most = train.replay_capacity // train.length
+    if train.batch > most:
+        raise ConfigError(f"train.batch={train.batch} sequences of train.length={train.length} "
+                          f"steps are more steps than the replay ever holds "
+                          f"(train.replay_capacity={train.replay_capacity}); valid: "
+                          f"train.batch <= {most}")
 
 
 def _check_starts(config: Config) -> None:

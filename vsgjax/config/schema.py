@@ -5,6 +5,7 @@ directory saves."""
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from collections.abc import Sequence
@@ -189,13 +190,18 @@ class Config:
 
 def parse_overrides(overrides: Sequence[str]) -> dict:
     """Command-line style ``section.key=value`` strings -> ``{key: value}`` (values parsed by
-    the key's type; unknown keys are errors)."""
-    values = {}
+    the key's type; unknown keys and a key given twice are errors)."""
+    values, given = {}, {}
     for item in overrides:
         key, sep, text = item.partition("=")
+        key = key.strip()
         if not sep:
             raise ConfigError(f"override {item!r} is not of the form section.key=value")
-        values[key.strip()] = _parse(key.strip(), text.strip(), _field_type(key.strip()))
+        if key in given:
+            raise ConfigError(f"config key {key!r} is given twice ({given[key]!r} and "
+                              f"{item!r}); give it once")
+        given[key] = item
+        values[key] = _parse(key, text.strip(), _field_type(key))
     return values
 
 
@@ -247,19 +253,31 @@ def _parse(key: str, text: str, kind: type):
         if lowered in ("false", "0", "no"):
             return False
         raise ConfigError(f"config key {key!r} wants a bool (true/false), got {text!r}")
-    if kind in (int, float):
+    if kind is int:
+        return _parse_int(key, text)
+    if kind is float:
         try:
-            return kind(float(text)) if kind is int and _is_integral(text) else kind(text)
+            return float(text)
         except ValueError:
-            raise ConfigError(f"config key {key!r} wants {kind.__name__}, got {text!r}") from None
+            raise ConfigError(f"config key {key!r} wants a float, got {text!r}") from None
     return text
 
 
-def _is_integral(text: str) -> bool:
+def _parse_int(key: str, text: str) -> int:
+    """An integer written as one (``100000``, ``100_000``); a float's notation is refused,
+    naming the integer it stands for when there is one."""
     try:
-        return float(text).is_integer() and ("e" in text.lower() or "." in text)
+        return int(text)
     except ValueError:
-        return False
+        pass
+    try:
+        value = float(text)
+    except ValueError:
+        raise ConfigError(f"config key {key!r} wants an integer, got {text!r}") from None
+    if math.isfinite(value) and value.is_integer():
+        raise ConfigError(f"config key {key!r} wants an integer, got {text!r} (a float's "
+                          f"notation); write {int(value)}")
+    raise ConfigError(f"config key {key!r} wants an integer, got {text!r}")
 
 
 def _coerce(key: str, value, kind: type):

@@ -45,6 +45,7 @@ from vsgjax.data.replay.device import (
 )
 from vsgjax.envs import EnvSpec
 from vsgjax.episode_keys import VECTOR_KEY
+from vsgjax.loop.driver import FirstUpdate
 
 
 class LoopState(NamedTuple):
@@ -96,6 +97,30 @@ class DeviceProgram:
             raise ValueError(f"the agent's updates sample {length} steps (train.length for the "
                              f"Dreamer family), longer than an episode of {self.task.name} "
                              f"({steps} stored steps); valid: <= {steps}")
+        every = self.config.train.train_every
+        if every > self.episode_steps:
+            raise ValueError(f"train.train_every={every} is longer than an episode of "
+                             f"{self.task.name} ({self.episode_steps} agent steps), inside which "
+                             f"the device loop makes its updates: it would make none; valid: "
+                             f"<= {self.episode_steps}")
+
+    @property
+    def env_steps_per_call(self) -> int:
+        return self.config.env.num_envs * self.episode_steps * self.task.action_repeat
+
+    def first_update(self) -> FirstUpdate:
+        """The first training call is the first to start once prefill has ended and the
+        replay holds an episode batch to sample; its first update comes ``train_every`` agent
+        steps into it (or at its start, pretraining)."""
+        per_call, train = self.env_steps_per_call, self.config.train
+        start = max(1, -(-train.prefill // per_call)) * per_call
+        into = 0 if train.pretrain else (self.config.env.num_envs * train.train_every
+                                         * self.task.action_repeat)
+        why = (f"the first training call starts at env step {start}, after prefill "
+               f"(train.prefill={train.prefill}) in whole calls of {per_call} env steps "
+               f"(env.num_envs={self.config.env.num_envs} episodes of {self.episode_steps} "
+               f"agent steps)")
+        return FirstUpdate(start + into, start + 1, why)
 
     # --- state ---------------------------------------------------------------------------------
 

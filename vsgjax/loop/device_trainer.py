@@ -26,6 +26,7 @@ from vsgjax.loop.device_program import DeviceProgram, LoopState
 from vsgjax.loop.driver import (
     LoopDriver,
     SeedEval,
+    check_first_update,
     check_seed_group,
     non_finite,
     open_runs,
@@ -66,6 +67,7 @@ class DeviceTrainer(LoopDriver):
         self.config, self.out = configs[0], out
         self.program = DeviceProgram(self.config, make_device_task(self.config.env))
         self.program.check()
+        check_first_update(self.config, logdirs, self.program.first_update())
         self.devices = resolve_devices(self.config)
         if len(configs) % self.devices:
             raise ConfigError(f"train.devices={self.devices} does not divide the {len(configs)} "
@@ -133,7 +135,8 @@ class DeviceTrainer(LoopDriver):
 
     @property
     def prefilling(self) -> bool:
-        return self.env_steps < self.config.train.prefill
+        """Until prefill has ended and the replay holds an episode batch to sample."""
+        return self.env_steps < max(self.config.train.prefill, 1)
 
     def step(self) -> None:
         """One call of the compiled program: one episode of every env (and its updates)."""

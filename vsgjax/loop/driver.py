@@ -22,7 +22,7 @@ from vsgjax.config import Config, ConfigError, to_dict
 from vsgjax.data import checkpoint
 from vsgjax.loop.evaluator import summarize
 from vsgjax.loop.logger import Progress
-from vsgjax.loop.rundir import RunWriter
+from vsgjax.loop.rundir import RunDir, RunWriter
 from vsgjax.loop.schedule import Counters, Schedule
 
 
@@ -117,6 +117,26 @@ def restore_seeds(runs: list[RunWriter], restore: Restore) -> list[checkpoint.Ch
     return restored
 
 
+class FirstUpdate(NamedTuple):
+    """When a new run makes its first update: at env step ``step``, in the collection that
+    starts below ``smallest_steps`` (the least ``train.steps`` that trains); ``why`` in words."""
+
+    step: int
+    smallest_steps: int
+    why: str
+
+
+def check_first_update(config: Config, logdirs: list[Path], first: FirstUpdate) -> None:
+    """ConfigError when a new run (no checkpoint in any of ``logdirs``) would end before its
+    first update: it would collect and evaluate, and train nothing."""
+    steps = config.train.steps
+    if steps >= first.smallest_steps or any(RunDir(d).checkpoints() for d in logdirs):
+        return
+    raise ConfigError(f"train.steps={steps} ends before the run's first update, at env step "
+                      f"{first.step} ({first.why}), so it would train nothing; the smallest "
+                      f"train.steps that trains is {first.smallest_steps}")
+
+
 def saved_counters(restored: checkpoint.Checkpoint) -> Counters:
     return Counters(**{k: v for k, v in restored.meta["counters"].items() if k != "episodes"})
 
@@ -195,6 +215,12 @@ class LoopDriver:
     def run(self) -> int:
         """Train to ``train.steps`` env steps; returns the process exit code."""
         train = self.config.train
+        if self.env_steps >= train.steps and not self.schedule.final_eval_due():
+            self.progress.close()
+            self.out(f"nothing to train: the run is already at env step {self.env_steps}, "
+                     f"evaluated and saved (train.steps={train.steps}); a higher train.steps "
+                     "trains it further")
+            return 0
         with checkpoint.StopSignal() as stop:
             while self.env_steps < train.steps and not stop.requested:
                 self.iteration()

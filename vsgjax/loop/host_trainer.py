@@ -20,13 +20,16 @@ from vsgjax.agents import make_agent
 from vsgjax.agents.acting import acting_policy
 from vsgjax.agents.interface import Agent
 from vsgjax.config import Config, ConfigError
+from vsgjax.config.checks import max_episode_steps
 from vsgjax.data import checkpoint
 from vsgjax.data.collect import Collector, EnvBatch, SeedEnvs, make_env_batch
 from vsgjax.data.replay import Replay
 from vsgjax.episode_keys import IMAGE_KEY
 from vsgjax.loop.driver import (
+    FirstUpdate,
     LoopDriver,
     SeedEval,
+    check_first_update,
     check_seed_group,
     group_label,
     non_finite,
@@ -41,11 +44,31 @@ from vsgjax.loop.parallel import Parallel, mesh_shape, resolve_devices, split_ke
 from vsgjax.loop.run_state import checkpoint_tree, restore_latest
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters, env_seed
+from vsgjax.registry.tasks import family_of
 
 MakeEnvs = Callable[..., EnvBatch]  # (env_cfg, seed, num_envs, *, eval) -> EnvBatch
 # Shown on the progress bar after every update: the world-model loss and the per-pixel image
 # error, which falls visibly from the first updates (the image loss is dominated by a constant).
 PER_UPDATE = {"loss": "wm/loss", "mse": "wm/image_mse"}
+
+
+def first_update(config: Config) -> FirstUpdate:
+    """When the host loop's first update comes: after the collection chunk in which prefill
+    ends and every env has finished an episode (the replay samples finished episodes only),
+    an episode running to its time limit unless the family's episodes end early as a rule."""
+    env, train = config.env, config.train
+    chunk = max(1, train.train_every // env.num_envs)  # agent steps of each env per chunk
+    per_chunk = chunk * env.num_envs * env.action_repeat  # env steps
+    chunks = max(1, -(-train.prefill // per_chunk))
+    why = [f"prefill ends at env step {chunks * per_chunk} (train.prefill={train.prefill})"]
+    if not family_of(env.task).ends_early:
+        episode = max_episode_steps(config) - 1  # agent steps
+        episode_chunks = -(-episode // chunk)
+        why.append(f"the first episodes end at env step {episode_chunks * per_chunk} "
+                   f"({episode} agent steps with env.time_limit={env.time_limit}, "
+                   f"env.action_repeat={env.action_repeat}, env.num_envs={env.num_envs})")
+        chunks = max(chunks, episode_chunks)
+    return FirstUpdate(chunks * per_chunk, (chunks - 1) * per_chunk + 1, "; ".join(why))
 
 
 class SeedRun(RunWriter):
@@ -69,7 +92,7 @@ class SeedRun(RunWriter):
         train, needs = self.config.train, agent.replay
         self.replay = Replay(train.replay_capacity, needs.length, self._replay_rng,
                              train.oversample_ends, history=needs.history)
-        # Episodes on disk are data even without a checkpoint (a run killed before its first).
+        # the episodes up to the checkpoint (RunWriter moved those after it aside)
         for episode in self.store.load(limit_steps=self.config.train.replay_capacity):
             self.replay.add_episode(episode)
         self.evaluator = Evaluator(agent, eval_envs)
@@ -102,6 +125,7 @@ class HostTrainer(LoopDriver):
         self.config, self.out = configs[0], out
         self.devices = resolve_devices(self.config)
         mesh_shape(len(configs), self.devices, self.config.train.batch)  # the batch must split
+        check_first_update(self.config, logdirs, first_update(self.config))
         self.runs = open_runs(lambda c, d: SeedRun(c, d, restart=restart), configs, logdirs)
         try:
             self._set_up(configs, make_envs, progress)
@@ -152,10 +176,8 @@ class HostTrainer(LoopDriver):
         """Whether this run resumes, and from where."""
         per_seed = lambda values: "/".join(str(v) for v in values)
         if not self.resumed:
-            found = per_seed(run.replay.num_episodes for run in self.runs)
-            found = f" ({found} episodes already in episodes/)" if found.strip("0/") else ""
             seeds = f" of seeds {group_label(self.seeds)}" if len(self.runs) > 1 else ""
-            return f"starting a new run{seeds}{found}"
+            return f"starting a new run{seeds}"
         return (f"resuming from {self.runs[0].checkpoint_path.name}: env step {self.env_steps}, "
                 f"update {self.counters.updates}, replay "
                 f"{per_seed(run.replay.num_steps for run in self.runs)} steps in "

@@ -15,21 +15,28 @@ import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-import imageio.v2 as imageio
+import imageio.v3 as imageio
 import numpy as np
 from tensorboardX import SummaryWriter
 from tqdm import tqdm
 
+from vsgjax.data.checkpoint import atomic_write
+
 
 def truncate_metrics(path: Path, max_step: int) -> int:
-    """Drop the records of ``path`` whose step exceeds ``max_step``; returns how many remain."""
+    """Drop the records of ``path`` whose step exceeds ``max_step``, and a line that is not
+    JSON (the last line of a killed run, cut short) with a warning naming the file, the line
+    and its text; returns how many remain."""
     if not path.exists():
         return 0
     kept = []
-    for line in path.read_text().splitlines():
+    for number, line in enumerate(path.read_text().splitlines(), 1):
         try:
             record = json.loads(line)
-        except json.JSONDecodeError:  # a line cut short by a killed run
+        except json.JSONDecodeError:
+            shown = line if len(line) <= 80 else f"{line[:80]}..."
+            warnings.warn(f"{path}, line {number}: dropped a record cut short by a killed run "
+                          f"({len(line)} characters: {shown!r})", stacklevel=2)
             continue
         if record.get("step", 0) <= max_step:
             kept.append(line)
@@ -87,7 +94,9 @@ class Logger:
         path = self.video_dir / f"{name}_{int(step):09d}.mp4"
         with warnings.catch_warnings():  # ffmpeg runs via fork+exec, which is safe under JAX
             warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
-            imageio.mimwrite(path, list(frames), fps=fps, macro_block_size=16)
+            data = imageio.imwrite("<bytes>", frames, extension=".mp4", fps=fps,
+                                   macro_block_size=16)
+        atomic_write(path, data)  # a killed run leaves the old file or none, never half of one
         self._writer.add_image(name, frames[len(frames) // 2], int(step), dataformats="HWC")
         return path
 

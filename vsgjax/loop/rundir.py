@@ -13,7 +13,8 @@
     episodes/            every finished training episode as MCAP (:mod:`vsgjax.data.replay`)
     videos/              eval and open-loop videos (image tasks)
     .lock                held by the training process (:mod:`vsgjax.loop.rundir_guard`)
-    previous/<time>/     what ``--restart`` moved aside
+    previous/<time>/     what ``--restart`` moved aside, or a killed attempt left (see
+                         :class:`RunWriter`)
 
 Training writes it (:class:`RunWriter`); evaluation, ``vsgjax.load`` and the experiments'
 launcher and report read it (:class:`RunDir`).
@@ -134,11 +135,12 @@ class RunDir:
         path = self.path(SCORES_FILE)
         return json.loads(path.read_text()) if path.exists() else None
 
-    def results_alone_to(self) -> int | None:
-        """The env step of the newest evaluation of a run kept without its training state (its
-        evaluations in ``scores.jsonl``, no checkpoint or episode: committed results, a copied
-        directory); None when there is a checkpoint or an episode, or no readable evaluation."""
-        if self.checkpoints() or self.episode_paths():
+    def evaluated_without_checkpoint(self) -> int | None:
+        """The env step of the newest evaluation of a run that has no checkpoint to resume
+        from (committed results, a copied directory, a deleted ``checkpoints/``); None when it
+        has a checkpoint or no readable evaluation. Training there would start the run over
+        and replace its results."""
+        if self.checkpoints():
             return None
         try:
             scores = self.read_scores()
@@ -156,7 +158,8 @@ class RunWriter(RunDir):
 
     def __init__(self, config: Config, logdir: Path, *, restart: bool = False):
         """Lock the directory, then (``restart``) move its old contents aside, or check that
-        it holds this config's run and set its corrupt checkpoints aside."""
+        it holds this config's run and set its corrupt checkpoints aside; a first attempt
+        killed before its first checkpoint and evaluation is moved aside."""
         super().__init__(logdir)
         self.config, self.seed = config, config.train.seed
         make_output_dir(self.logdir, "log directory")
@@ -164,9 +167,11 @@ class RunWriter(RunDir):
         try:
             self.moved_to = move_aside(self.logdir) if restart else None
             self._check_config()
-            self._check_not_results_alone()
             set_aside_corrupt(self.logdir, self.ckpt_dir)
-            remove_interrupted_writes(self.logdir, self.ckpt_dir, self.episodes_dir)
+            self._check_resumable()
+            remove_interrupted_writes(self.logdir, self.ckpt_dir, self.episodes_dir,
+                                      self.path(VIDEOS_DIR))
+            self.attempt_moved_to = None if self.checkpoints() else self._move_killed_attempt()
         except BaseException:
             self.lock.unlock()
             raise
@@ -175,6 +180,7 @@ class RunWriter(RunDir):
         self.scores: dict = {"xs": [], "ys": []}
         self.episodes = 0
         self.checkpoint_path: Path | None = None
+        self.episodes_moved_to: Path | None = None  # by load: those after the checkpoint
         self.window: list[dict] = []  # metrics of the updates since the last log
         self.window_episodes: list[dict] = []
 
@@ -188,19 +194,38 @@ class RunWriter(RunDir):
             raise ConfigError(f"{self.logdir} holds a run with a different config ("
                               + "; ".join(changed) + f"); {restart_hint(self.logdir)}")
 
-    def _check_not_results_alone(self) -> None:
-        """Training over a run kept without its training state would start it over and replace
-        its results, so it is refused."""
-        evaluated = self.results_alone_to()
+    def _check_resumable(self) -> None:
+        """Training over evaluations that no checkpoint can resume would start the run over
+        and replace its results, so it is refused."""
+        evaluated = self.evaluated_without_checkpoint()
         if evaluated is not None:
+            where = ("checkpoints/ is empty" if self.ckpt_dir.is_dir()
+                     else "there is no checkpoints/")
             raise RunDirError(f"{self.logdir} holds the evaluations of a run to env step "
-                              f"{evaluated} but no checkpoint or episodes to resume it from; "
-                              f"{restart_hint(self.logdir)}")
+                              f"{evaluated} but no checkpoint to resume it from ({where}); "
+                              f"nothing was changed; {restart_hint(self.logdir)}")
+
+    def _move_killed_attempt(self) -> Path | None:
+        """What an attempt killed before its first checkpoint and evaluation wrote (episodes,
+        log lines, videos) goes to ``previous/<time>/``, so that the new run starts as an
+        uninterrupted one would; returns where (None when it left no data)."""
+        logged = self.path(METRICS_FILE).exists() and self.path(METRICS_FILE).stat().st_size
+        videos = self.path(VIDEOS_DIR)
+        if not (self.episode_paths() or logged or (videos.is_dir() and any(videos.iterdir()))):
+            return None
+        return move_aside(self.logdir)
 
     def load(self, restored: checkpoint.Checkpoint) -> None:
+        """Take the run's scores and episode count from its checkpoint; the episode files
+        written after it (by a killed run) go to ``previous/<time>/episodes/``, so the
+        resumed run's replay holds what the checkpointed one had."""
         self.scores = restored.meta["scores"]
-        self.episodes = restored.meta["counters"].get("episodes", 0)
+        counters = restored.meta["counters"]
+        self.episodes = counters.get("episodes", 0)
         self.checkpoint_path = restored.path
+        if "episodes" in counters:  # older checkpoints did not count them
+            self.episodes_moved_to = move_aside(self.logdir,
+                                                self.episode_paths()[self.episodes:])
 
     def open_logs(self, env_steps: int) -> None:
         """Write config and scores, open the logs (dropping records after ``env_steps``)."""

@@ -3,8 +3,9 @@ silently replaced, mixed with another or pruned of its only good data.
 
 * the directory exists or is created (:func:`vsgjax.outdir.make_output_dir`).
 * :class:`RunLock`: one training process per run directory.
-* :func:`move_aside` (``--restart``): the old contents go to ``previous/<UTC time>/``; nothing
-  is deleted.
+* :func:`move_aside`: the old contents (``--restart``; a first attempt killed before its first
+  checkpoint and evaluation), or the episodes a killed run wrote after its newest checkpoint,
+  go to ``previous/<UTC time>/``; nothing is deleted.
 * :func:`set_aside_corrupt`: a corrupt checkpoint goes to ``checkpoints/corrupt/`` (out of the
   kept ones); when every checkpoint is corrupt, nothing is touched and the run is refused.
 * :func:`remove_interrupted_writes`: the temporary files of writes that a killed process left
@@ -71,17 +72,21 @@ class RunLock:
         self._file.close()
 
 
-def move_aside(logdir: Path) -> Path | None:
-    """Move every entry of ``logdir`` but the lock and ``previous/`` into
-    ``previous/<UTC time>/``; returns that directory (None when there was nothing to move)."""
-    entries = [p for p in sorted(logdir.iterdir()) if p.name not in (LOCK_FILE, PREVIOUS_DIR)]
+def move_aside(logdir: Path, entries: list[Path] | None = None) -> Path | None:
+    """Move ``entries`` of ``logdir`` (by default every entry but the lock and ``previous/``)
+    into ``previous/<UTC time>/``, each at its path relative to ``logdir``; returns that
+    directory (None when there was nothing to move)."""
+    if entries is None:
+        entries = [p for p in sorted(logdir.iterdir())
+                   if p.name not in (LOCK_FILE, PREVIOUS_DIR)]
     if not entries:
         return None
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
     target = _unused(logdir / PREVIOUS_DIR / stamp)
-    target.mkdir(parents=True)
     for entry in entries:
-        entry.rename(target / entry.name)
+        moved = target / entry.relative_to(logdir)
+        moved.parent.mkdir(parents=True, exist_ok=True)
+        entry.rename(moved)
     return target
 
 

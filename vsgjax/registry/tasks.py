@@ -40,6 +40,9 @@ class TaskFamily:
     grayscale_sticky: bool = False  # takes env.grayscale and env.sticky (Atari's options)
     same_tasks_as: str = ""  # the family whose tasks these are, in another simulator
     extra_steps: int = 0  # env steps an episode runs past env.time_limit (BBS's original: 2)
+    # its episodes end before env.time_limit as a rule (Atari's game over), so when the first
+    # episode ends is not known before training
+    ends_early: bool = False
 
     def owns(self, task: str) -> bool:
         return task.partition("_")[0] == self.prefix
@@ -54,7 +57,8 @@ FAMILIES: dict[str, TaskFamily] = {family.prefix: family for family in (
                "vsgjax.envs.dmc:parse", "vsgjax.envs.dmc:build"),
     TaskFamily("atari", "atari_<game>", "Atari through ale-py, DreamerV2's settings",
                "atari", False, IMAGE, DISCRETE,
-               "vsgjax.envs.atari:parse", "vsgjax.envs.atari:build", grayscale_sticky=True),
+               "vsgjax.envs.atari:parse", "vsgjax.envs.atari:build", grayscale_sticky=True,
+               ends_early=True),
     TaskFamily("mjx", "mjx_<domain>_<task>",
                "DeepMind Control on MuJoCo MJX, vector observations, stepped on the device",
                "dmc", True, VECTOR, CONTINUOUS,

@@ -31,6 +31,7 @@ def fake_envs(env_cfg, seed: int, num_envs: int, *, eval: bool = False) -> EnvBa
 def host_config(steps: int):
     return make_config("dmc_walker_walk", "drqv2", "debug",
                        [f"train.steps={steps}", "train.prefill=40", "train.eval_every=60",
+                        "env.time_limit=40",  # the fake env's episodes are shorter still
                         "train.log_every=20", "train.ckpt_every=10"])
 
 

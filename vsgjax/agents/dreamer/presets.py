@@ -79,8 +79,9 @@ SIZE = {
         "train.eval_every": 4000, "train.eval_episodes": 4, "train.log_every": 2000,
         "train.replay_capacity": 200_000,
     },
+    # episodes of 200 env steps, so that a debug run trains within its 400 steps on every family
     "debug": {
-        "model.deter": 32, "model.hidden": 32, "wm.cnn_depth": 4,
+        "env.time_limit": 200, "model.deter": 32, "model.hidden": 32, "wm.cnn_depth": 4,
         "wm.mlp_layers": 1, "wm.mlp_units": 32, "wm.reward_layers": 1,
         "wm.discount_layers": 1, "ac.actor_layers": 1, "ac.critic_layers": 1,
         "ac.horizon": 5, "train.batch": 4, "train.length": 10, "train.prefill": 100,

@@ -75,7 +75,8 @@ SIZE = {
         "train.steps": 100_000, "train.eval_every": 4000, "train.eval_episodes": 4,
         "train.log_every": 2000, "train.replay_capacity": 200_000,
     },
-    "debug": {
+    "debug": {  # episodes of 200 env steps, as the Dreamer family's debug size
+        "env.time_limit": 200,
         "drq.hidden": 32, "drq.feature_dim": 8, "drq.cnn_depth": 4, "drq.std_steps": 1000,
         "train.batch": 8, "train.prefill": 100, "train.steps": 400, "train.eval_every": 200,
         "train.eval_episodes": 1, "train.log_every": 50, "train.ckpt_every": 5,
