@@ -2,7 +2,7 @@
 
 Reading runs (``runs``), the paper's numbers (``reference``), the grid (``binning``), what every
 figure reads (``context``), one module per figure kind (``curves``, ``bars``, ``grid``,
-``discovery``, ``summary``, ``versus``, ``open_loop``, ``rollouts``), the report
+``discovery``, ``summary``, ``versus``, ``open_loop``, ``panels``, ``rollouts``), the report
 (``assemble``) and its command line (``cli``). Each figure has a data function and a drawing
 function; the manual is docs/reports.md.
 """
@@ -28,6 +28,7 @@ from experiments.report.open_loop import (
     open_loop_markdown,
     read_open_loop,
 )
+from experiments.report.panels import PanelsData, draw_panels, panels_data, panels_markdown
 from experiments.report.reference import (
     REFERENCE_DIR,
     Reference,
@@ -48,12 +49,13 @@ from experiments.report.summary import (
 
 __all__ = [
     "REFERENCE_DIR", "BarsData", "Context", "Curve", "CurvesData", "DiscoveryData", "ErrorLine",
-    "GridData", "Line", "OpenLoopData", "Reference", "Report", "ReportWarning", "RolloutsData",
-    "RunRecords", "Section", "Stat", "SummaryData", "bars_data", "bars_markdown", "bin_of",
-    "binned", "build_report", "colour", "curves_data", "discovery_data", "discovery_latex",
-    "discovery_markdown", "draw_bars", "draw_curves", "draw_grid", "draw_open_loop",
-    "draw_summary", "grid_data", "grid_markdown", "load_discovery_reference", "load_reference",
-    "main", "missing_note", "open_loop_data", "open_loop_markdown", "paper_task", "read_jsonl",
+    "GridData", "Line", "OpenLoopData", "PanelsData", "Reference", "Report", "ReportWarning",
+    "RolloutsData", "RunRecords", "Section", "Stat", "SummaryData", "bars_data", "bars_markdown",
+    "bin_of", "binned", "build_report", "colour", "curves_data", "discovery_data",
+    "discovery_latex", "discovery_markdown", "draw_bars", "draw_curves", "draw_grid",
+    "draw_open_loop", "draw_panels", "draw_summary", "grid_data", "grid_markdown",
+    "load_discovery_reference", "load_reference", "main", "missing_note", "open_loop_data",
+    "open_loop_markdown", "panels_data", "panels_markdown", "paper_task", "read_jsonl",
     "read_open_loop", "rollouts_data", "rollouts_markdown", "save_figure", "seed_stats",
     "std_units", "step_label", "summary_data", "summary_markdown", "value_near",
 ]

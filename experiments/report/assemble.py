@@ -17,6 +17,7 @@ from experiments.report.discovery import (
 )
 from experiments.report.grid import draw_grid, grid_data, grid_markdown
 from experiments.report.open_loop import draw_open_loop, open_loop_data, open_loop_markdown
+from experiments.report.panels import draw_panels, panels_data, panels_markdown
 from experiments.report.reference import REFERENCE_DIR
 from experiments.report.rollouts import rollouts_data, rollouts_markdown
 from experiments.report.runs import run_name, warn
@@ -104,6 +105,9 @@ def section(context: Context, kind: str, name: str, figure: dict, out: Path) -> 
     if kind == "open_loop":
         data = open_loop_data(context, figure.get("at"))
         return Section(kind, name, data, draw_open_loop(data, stem), open_loop_markdown(data))
+    if kind == "panels":
+        data = panels_data(context, figure.get("panels", ()), figure.get("at", ()))
+        return Section(kind, name, data, draw_panels(data, stem), panels_markdown(data))
     if kind == "rollouts":
         data = rollouts_data(context)
         return Section(kind, name, data, [], rollouts_markdown(data, out))

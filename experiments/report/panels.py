@@ -1,0 +1,218 @@
+"""The ``panels`` figure and table: named comparison panels, each one task and the methods it
+compares (return against env steps, mean ± std over seeds), a table at given env steps with
+the gated methods' gate statistics, and for a panel with ``compare = [ours, baseline]`` a
+verdict at the last of those steps.
+
+A ``[[figures]]`` entry ``kind = "panels"`` has ``at`` (env steps) and ``[[figures.panels]]``
+tables ``{title, task, methods, compare}`` (``title`` defaults to the task, ``compare`` is
+optional). A value at a step is the evaluation nearest to it and at most one grid bin away (the
+bars' rule). The gate columns are the mean over seeds of each seed's last ``gates/open`` and
+``gates/closed_run_mean`` in its ``metrics.jsonl`` (VSG and SVSG log them; others read —).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib.ticker
+from matplotlib.figure import Figure
+
+from experiments.report.binning import Stat, binned, seed_stats, value_near
+from experiments.report.context import Context
+from experiments.report.runs import Curve, is_number, read_jsonl, warn
+from experiments.report.style import (
+    colour,
+    fmt,
+    hide_unused,
+    markdown_table,
+    missing_note,
+    panel_grid,
+    save_figure,
+    step_label,
+)
+from experiments.spec import Run
+from vsgjax.loop.rundir import METRICS_FILE
+
+GATE_KEYS = ("gates/open", "gates/closed_run_mean")  # the table's gate columns, in order
+GATE_DIGITS = {"gates/open": 2, "gates/closed_run_mean": 1}
+NO_RUNS = "no runs yet"
+
+
+@dataclass
+class Panel:
+    """One axes of the figure: a task and the methods drawn on it."""
+
+    title: str
+    task: str
+    methods: list[str]
+    compare: tuple[str, str] | None  # (ours, baseline) for the verdict
+
+
+@dataclass
+class PanelsData:
+    panels: list[Panel]
+    seeds: dict[tuple[str, str], list[Curve]]  # (task, method) -> its seeds with scores
+    gates: dict[tuple[str, str], dict[str, Stat]]  # (task, method) -> gate key -> over seeds
+    missing: list[Run]
+    spacing: float
+    at: list[float]
+
+
+def read_panels(entries, problems: list[str] | None = None) -> list[Panel]:
+    """The panels of a figure entry's ``panels`` list; one without a task or methods is skipped
+    and a ``compare`` that is not two of its methods dropped, each with a warning."""
+    panels = []
+    for index, entry in enumerate(entries):
+        task, methods = entry.get("task"), list(entry.get("methods", ()))
+        title = entry.get("title", task)
+        if not task or not methods:
+            warn(f"panels: panel {index} ({title!r}) has no task or no methods; skipped",
+                 problems)
+            continue
+        compare = entry.get("compare")
+        if compare is not None and (len(compare) != 2 or not set(compare) <= set(methods)):
+            warn(f"panels: panel {title!r}: compare must be two of its methods, got "
+                 f"{compare!r}; no verdict", problems)
+            compare = None
+        panels.append(Panel(title, task, methods, tuple(compare) if compare else None))
+    return panels
+
+
+def last_gate_values(path: Path, problems: list[str] | None = None) -> dict[str, float]:
+    """Each gate key's last logged number in a ``metrics.jsonl`` (keys never logged are
+    absent; so is everything when the file is)."""
+    if not path.exists():
+        return {}
+    last = {}
+    for record in read_jsonl(path, problems):
+        last.update({key: float(record[key]) for key in GATE_KEYS if is_number(record.get(key))})
+    return last
+
+
+def gate_stats(context: Context, runs: list[Run]) -> dict[str, Stat]:
+    """Per gate key: mean ± std over the runs of each one's last logged value."""
+    values = [last_gate_values(run.logdir(context.records.root) / METRICS_FILE,
+                               context.records.problems) for run in runs]
+    return {key: Stat.of(value.get(key) for value in values) for key in GATE_KEYS}
+
+
+def panels_data(context: Context, entries=(), at=()) -> PanelsData:
+    """The seeds with scores and the gate statistics of every panel's task x method; a method
+    the experiment has no runs of on the panel's task is warned about."""
+    panels = read_panels(entries, context.records.problems)
+    seeds, gates, missing = {}, {}, []
+    for panel in panels:
+        for method in panel.methods:
+            key = (panel.task, method)
+            if key in seeds:
+                continue
+            runs = context.runs_of(*key)
+            if not runs:
+                warn(f"panels: {panel.title!r}: the experiment has no runs of {method} on "
+                     f"{panel.task}", context.records.problems)
+            seeds[key], absent = context.ours(*key)
+            gates[key] = gate_stats(context, runs)
+            missing.extend(absent)
+    return PanelsData(panels, seeds, gates, missing, context.spacing, [float(x) for x in at])
+
+
+def draw_panel(ax, panel: Panel, data: PanelsData) -> None:
+    """One panel's mean ± std lines, its missing-runs note (or "no runs yet"), its labels."""
+    for method in panel.methods:
+        seeds = data.seeds.get((panel.task, method), [])
+        if not seeds:
+            continue
+        c = colour(method, panel.methods)
+        x, mean, std, _ = seed_stats(binned(s, data.spacing) for s in seeds)
+        ax.plot(x, mean, color=c, lw=1.5, label=f"{method} (n={len(seeds)})")
+        ax.fill_between(x, mean - std, mean + std, color=c, alpha=0.2, lw=0)
+    if ax.lines:
+        ax.legend(fontsize=6, loc="lower right")
+    else:
+        ax.text(0.5, 0.5, NO_RUNS, transform=ax.transAxes, ha="center", color="gray")
+    absent = [r for r in data.missing if r.task == panel.task and r.method in panel.methods]
+    note = missing_note(absent, 4, 45, False)
+    if note:
+        ax.text(0.02, 0.98, note, transform=ax.transAxes, va="top", fontsize=6,
+                color="firebrick")
+    ax.set_title(f"{panel.title}\n({panel.task})", fontsize=8)
+    ax.set_xlabel("env steps", fontsize=8)
+    ax.set_ylabel("eval return", fontsize=8)
+    ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(
+        lambda value, _: step_label(value)))
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.3)
+
+
+def draw_panels(data: PanelsData, stem: Path, title: str = "") -> list[Path]:
+    """One axes per panel, up to 4 a row."""
+    rows, columns = panel_grid(len(data.panels))
+    figure = Figure(figsize=(3.4 * columns, 3.0 * rows + 0.5), layout="constrained")
+    axes = figure.subplots(rows, columns, squeeze=False)
+    for index, panel in enumerate(data.panels):
+        draw_panel(axes[index // columns][index % columns], panel, data)
+    hide_unused(axes, len(data.panels), rows, columns)
+    figure.suptitle(title or "eval return (mean ± std over seeds)", fontsize=10)
+    return save_figure(figure, stem)
+
+
+def stat_at(data: PanelsData, task: str, method: str, at: float) -> Stat:
+    return Stat.of(value_near(c, at, data.spacing) for c in data.seeds.get((task, method), []))
+
+
+def value_cells(data: PanelsData, task: str, method: str) -> list[str]:
+    """The method's ``mean ± std (n)`` at each ``at`` step; "no runs yet" without scores,
+    — where no seed has an evaluation near the step."""
+    if not data.seeds.get((task, method)):
+        return [NO_RUNS] * len(data.at)
+    stats = [stat_at(data, task, method, at) for at in data.at]
+    return [stat.text(1) if stat.n else "—" for stat in stats]
+
+
+def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
+    """Each gate key's mean over seeds, — where no seed logged it."""
+    stats = data.gates[(task, method)]
+    return [fmt(stats[key].mean, GATE_DIGITS[key]) for key in GATE_KEYS]
+
+
+def verdict(data: PanelsData, panel: Panel) -> str:
+    """At the last ``at`` step: ours − baseline, and whether ours is above the baseline by more
+    than the baseline's std, within it, or below it by more ("not enough runs" below 2 seeds
+    a side)."""
+    ours, baseline = panel.compare
+    at = data.at[-1]
+    a, b = (stat_at(data, panel.task, m, at) for m in panel.compare)
+    where = f"{panel.title}, at {step_label(at)} env steps"
+    if a.n < 2 or b.n < 2:
+        return (f"{where}: not enough runs to compare {ours} (n={a.n}) with {baseline} "
+                f"(n={b.n}).")
+    difference = a.mean - b.mean
+    if difference > b.std:
+        outcome = "above the baseline beyond one standard deviation"
+    elif difference >= -b.std:
+        outcome = "within one std of the baseline"
+    else:
+        outcome = "below the baseline by more than one std"
+    return (f"{where}: {ours} − {baseline} = {difference:+.1f} ({baseline}'s std "
+            f"{b.std:.1f}): {outcome}.")
+
+
+def panels_markdown(data: PanelsData) -> str:
+    """Per panel x method: the values at the ``at`` steps and the gate columns; then the
+    verdict of every panel with ``compare``."""
+    header = ["panel", "method"] + [f"{step_label(a)} env steps" for a in data.at] + [
+        "gate open fraction", "closed-run length (steps)"]
+    rows = [header] + [[panel.title, method] + value_cells(data, panel.task, method)
+                       + gate_cells(data, panel.task, method)
+                       for panel in data.panels for method in panel.methods]
+    text = markdown_table(rows)
+    text += (f"\n\nA value is the evaluation nearest to the step, at most one evaluation "
+             f"interval ({step_label(data.spacing)} env steps) away: mean ± std over seeds "
+             "(n seeds). Gate columns: the mean over seeds of each seed's last `gates/open` "
+             "and `gates/closed_run_mean` in `metrics.jsonl` (— for a method that logs no "
+             "gates, or none yet).")
+    verdicts = [verdict(data, panel) for panel in data.panels if panel.compare and data.at]
+    if verdicts:
+        text += "\n\n" + "\n".join(f"- {line}" for line in verdicts)
+    return text

@@ -1,0 +1,172 @@
+"""The report's ``panels`` figure and table from hand-written run directories
+(experiments/report/panels.py): values at the ``at`` steps, the gate columns from
+``metrics.jsonl``, the verdict of a panel's ``compare``, panels without runs."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+
+from experiments import report
+from experiments.report import Context, ReportWarning
+from experiments.report.panels import panels_data
+from experiments.spec import load_experiment
+
+CARTPOLE = "mjx_cartpole_swingup"
+STEPS = [20_000.0, 60_000.0, 100_000.0]
+PANELS = [
+    {"title": "hidden", "task": CARTPOLE, "methods": ["VSG-hidevel", "DreamerV2-hidevel"],
+     "compare": ["VSG-hidevel", "DreamerV2-hidevel"]},
+    {"title": "hidden, reversed", "task": CARTPOLE,
+     "methods": ["VSG-hidevel", "DreamerV2-hidevel"],
+     "compare": ["DreamerV2-hidevel", "VSG-hidevel"]},
+    {"title": "noise", "task": CARTPOLE, "methods": ["VSG-noise16", "DreamerV2-noise16"],
+     "compare": ["VSG-noise16", "DreamerV2-noise16"]},
+    {"title": "empty", "task": "mjx_reacher_easy", "methods": ["DreamerV2-memoryless"]},
+    {"title": "walker", "task": "mjx_walker_walk", "methods": ["SVSG", "DreamerV1"],
+     "compare": ["SVSG", "DreamerV1"]},
+]
+# returns at 20k, 60k, 100k per seed
+RETURNS = {
+    "VSG-hidevel": [(10, 50, 300), (20, 60, 400), (30, 70, 500)],  # 100k: 400 ± 81.6
+    "DreamerV2-hidevel": [(5, 40, 200), (5, 40, 250), (5, 40, 300)],  # 100k: 250 ± 40.8
+    "VSG-noise16": [(1, 2, 325), (3, 4, 345)],  # seed 2 missing; 100k: 335 ± 10
+    "DreamerV2-noise16": [(0, 0, 280), (0, 0, 320), (0, 0, 360)],  # 100k: 320 ± 32.7
+}
+# VSG-hidevel's gates per seed: (open, closed-run length) of earlier lines, then the last
+GATES = [((0.9, 100.0), (0.2, 3.0)), ((0.9, 100.0), (0.3, 4.0)), ((0.9, 100.0), (0.45, 6.0))]
+
+
+def experiment_with_panels(panels=PANELS, at=(20_000, 100_000)):
+    experiment = load_experiment("cpu_memory")
+    return dataclasses.replace(experiment, figures=({"kind": "panels", "at": list(at),
+                                                     "panels": panels},))
+
+
+def runs_of(experiment, task, method):
+    return sorted((r for r in experiment.runs if r.task == task and r.method == method),
+                  key=lambda r: r.seed)
+
+
+def write_scores(run, root, ys):
+    logdir = run.logdir(root)
+    logdir.mkdir(parents=True, exist_ok=True)
+    (logdir / "scores.jsonl").write_text(json.dumps({"xs": STEPS, "ys": list(ys),
+                                                     "wall_s": [1.0, 2.0, 3.0]}) + "\n")
+
+
+def write_metrics(run, root, gates):
+    """A train line, a gates line per (open, closed-run length), then an eval line without
+    gates: the last gates line is not the file's last line."""
+    lines = [{"step": 2_000, "train/loss": 1.0}]
+    lines += [{"step": 4_000 * k, "gates/open": open_, "gates/closed_run_mean": closed,
+               "gates/never_open": 0.0} for k, (open_, closed) in enumerate(gates, 1)]
+    lines += [{"step": 100_000, "eval/return": 1.0}]
+    path = run.logdir(root) / "metrics.jsonl"
+    path.write_text("".join(json.dumps(line) + "\n" for line in lines))
+
+
+def write_runs(experiment, root):
+    for method, seeds in RETURNS.items():
+        for run, ys in zip(runs_of(experiment, CARTPOLE, method), seeds, strict=False):
+            write_scores(run, root, ys)
+            write_metrics(run, root, [])
+    for run, gates in zip(runs_of(experiment, CARTPOLE, "VSG-hidevel"), GATES, strict=True):
+        write_metrics(run, root, gates)
+    write_scores(runs_of(experiment, "mjx_walker_walk", "SVSG")[0], root, (1, 2, 3))
+    for run in runs_of(experiment, "mjx_walker_walk", "DreamerV1"):
+        write_scores(run, root, (0, 0, 0))
+
+
+def table_rows(markdown):
+    """(panel, method) -> the cells after those two, of every table row below the header."""
+    lines = [line for line in markdown.splitlines() if line.startswith("| ")]
+    rows = [[cell.strip() for cell in line.strip("|").split("|")] for line in lines[1:]]
+    return {(cells[0], cells[1]): cells[2:] for cells in rows}
+
+
+def verdict_of(markdown, title):
+    (line,) = [line for line in markdown.splitlines() if line.startswith(f"- {title}, at")]
+    return line
+
+
+def test_panels_table_gates_verdicts_and_files(tmp_path):
+    experiment = experiment_with_panels()
+    write_runs(experiment, tmp_path)
+    built = report.build_report(experiment, tmp_path, tmp_path / "out")
+    (section,) = built.sections
+    assert section.kind == "panels"
+    assert [p.name for p in section.files] == ["panels.png", "panels.pdf"]
+    assert all(p.exists() for p in section.files)
+    assert section.files[0].read_bytes().startswith(b"\x89PNG")
+    assert "![panels](panels.png)" in built.markdown.read_text()
+
+    rows = table_rows(section.markdown)
+    # at 20k and 100k, then gate open fraction and closed-run length
+    assert rows[("hidden", "VSG-hidevel")] == [
+        "20.0 ± 8.2 (n=3)", "400.0 ± 81.6 (n=3)", "0.32", "4.3"]  # (0.2+0.3+0.45)/3, 13/3
+    assert rows[("hidden", "DreamerV2-hidevel")] == [
+        "5.0 ± 0.0 (n=3)", "250.0 ± 40.8 (n=3)", "—", "—"]  # logs no gates
+    assert rows[("noise", "VSG-noise16")] == ["2.0 ± 1.0 (n=2)", "335.0 ± 10.0 (n=2)", "—", "—"]
+    assert rows[("noise", "DreamerV2-noise16")][1] == "320.0 ± 32.7 (n=3)"
+    assert rows[("empty", "DreamerV2-memoryless")] == ["no runs yet", "no runs yet", "—", "—"]
+    assert rows[("walker", "SVSG")][:2] == ["1.0 ± 0.0 (n=1)", "3.0 ± 0.0 (n=1)"]
+
+    # 400 - 250 = +150 > 40.8; 250 - 400 = -150 < -81.6; 335 - 320 = +15 within 32.7 (though
+    # beyond ours' std 10: the baseline's std decides)
+    assert verdict_of(section.markdown, "hidden").endswith(
+        "VSG-hidevel − DreamerV2-hidevel = +150.0 (DreamerV2-hidevel's std 40.8): above the "
+        "baseline beyond one standard deviation.")
+    assert "= -150.0 (VSG-hidevel's std 81.6): below the baseline by more than one std." in \
+        verdict_of(section.markdown, "hidden, reversed")
+    assert verdict_of(section.markdown, "noise").endswith(
+        "= +15.0 (DreamerV2-noise16's std 32.7): within one std of the baseline.")
+    assert verdict_of(section.markdown, "walker").endswith(
+        "not enough runs to compare SVSG (n=1) with DreamerV1 (n=3).")
+    assert "- empty, at" not in section.markdown  # no compare, no verdict
+
+    data = section.data
+    noise = runs_of(experiment, CARTPOLE, "VSG-noise16")
+    memoryless = runs_of(experiment, "mjx_reacher_easy", "DreamerV2-memoryless")
+    assert noise[2] in data.missing and noise[0] not in data.missing
+    assert all(run in data.missing for run in memoryless)
+    assert not any(run.method == "DreamerV2-memoryless" and run.task == CARTPOLE
+                   for run in data.missing)  # only the panels' task x methods are read
+    assert data.gates[(CARTPOLE, "VSG-hidevel")]["gates/open"].n == 3
+
+
+def test_a_report_without_any_runs_says_no_runs_yet(tmp_path):
+    built = report.build_report(experiment_with_panels(), tmp_path, tmp_path / "out")
+    rows = table_rows(built.sections[0].markdown)
+    assert len(rows) == 9 and all(cells[:2] == ["no runs yet"] * 2 for cells in rows.values())
+    assert verdict_of(built.sections[0].markdown, "hidden").endswith(
+        "not enough runs to compare VSG-hidevel (n=0) with DreamerV2-hidevel (n=0).")
+    assert all(path.exists() for path in built.sections[0].files)
+
+
+def test_bad_panels_are_warned_about_not_fatal(tmp_path):
+    panels = [{"title": "no task", "methods": ["SVSG"]},
+              {"title": "typo", "task": CARTPOLE, "methods": ["SVSG", "VSG-hidevl"],
+               "compare": ["SVSG", "DreamerV1"]}]
+    experiment = experiment_with_panels(panels)
+    context = Context.create(experiment, tmp_path)
+    with pytest.warns(ReportWarning) as caught:
+        data = panels_data(context, panels, [100_000])
+    assert [panel.title for panel in data.panels] == ["typo"] and data.panels[0].compare is None
+    assert len(caught) == 3  # the panel without a task, the compare, the unknown method
+    assert "no runs of VSG-hidevl on mjx_cartpole_swingup" in context.records.problems[-1]
+
+
+def test_cpu_memory_defines_its_panels():
+    (figure,) = [f for f in load_experiment("cpu_memory").figures if f["kind"] == "panels"]
+    assert figure["at"] == [20_000, 60_000, 100_000]
+    assert [(p["task"], p.get("compare")) for p in figure["panels"]] == [
+        (CARTPOLE, ["VSG-hidevel", "DreamerV2-hidevel"]),
+        ("mjx_reacher_easy", ["VSG-target10", "DreamerV2-target10"]),
+        (CARTPOLE, ["VSG-noise16", "DreamerV2-noise16"]),
+        (CARTPOLE, None), ("mjx_reacher_easy", None),
+        (CARTPOLE, ["SVSG", "DreamerV1"]), ("mjx_walker_walk", ["SVSG", "DreamerV1"])]
+    planned = {(run.task, run.method) for run in load_experiment("cpu_memory").runs}
+    assert all((p["task"], m) in planned for p in figure["panels"] for m in p["methods"])
