@@ -392,14 +392,14 @@ def test_a_bad_seeds_per_process_is_an_error_naming_it(tmp_path, capsys):
 def test_local_launch_trains_two_seeds_in_one_process(definitions, tmp_path, child_env):
     """``--seeds 2 --seeds-per-process 2``: one process trains both runs to the end; the second
     run's launch.log points at the first's, which holds the output."""
-    args = launch_args("one", definitions, tmp_path, "--seeds", "2", "--steps", "200",
-                       "--seeds-per-process", "2")
+    args = launch_args("one", definitions, tmp_path, "--seeds", "2", "--steps", "280",
+                       "--seeds-per-process", "2")  # the first update comes at env step 240
     result = subprocess.run([sys.executable, "-m", "experiments.launch", *args], cwd=ROOT,
                             env=child_env, capture_output=True, text=True, timeout=TIMEOUT)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     assert "started 0 bbs_basic/vsg/s{0,1}" in result.stdout
     first, second = (tmp_path / "one" / "bbs_basic" / "vsg" / f"s{seed}" for seed in (0, 1))
-    assert launch.checkpoint_step(first) == launch.checkpoint_step(second) == 200
+    assert launch.checkpoint_step(first) == launch.checkpoint_step(second) == 280
     log = (first / "launch.log").read_text()
     assert "--seeds 0,1" in log and "train.devices=2" in log
     assert "2 seed(s) in one program; mesh seed=2 x data=1" in log  # one seed per device

@@ -156,8 +156,9 @@ def test_a_seeds_non_finite_update_stops_only_that_seed(tmp_path, capsys):
     """Seed 1's updates of the first training call are NaN: seed 1 stops, seed 0 finishes."""
     from vsgjax.loop.device_trainer import DeviceTrainer
 
-    configs = [make_config(TASK, "vsg", "debug", [*SHORT, f"train.seed={seed}", "train.steps=240",
-                                                  "train.ckpt_every=4", "train.pretrain=0"])
+    configs = [make_config(TASK, "vsg", "debug",
+                           replaced(SHORT, f"train.seed={seed}", "train.steps=240",
+                                    "train.ckpt_every=4", "train.pretrain=0"))
                for seed in (0, 1)]
     trainer = DeviceTrainer(configs, [tmp_path / "a", tmp_path / "b"], progress=False,
                             out=lambda *_: None)
@@ -192,7 +193,7 @@ SPREAD = textwrap.dedent("""
     for devices in (1, 2):
         args = ["--task", "mjx_cartpole_balance", "--size", "debug", "--seeds", "0,1",
                 "--logdir", str(root / f"d{devices}-s{{seed}}"), "--no-progress", *flags,
-                "train.steps=160", "train.pretrain=0", f"train.devices={devices}"]
+                "train.steps=160", f"train.devices={devices}"]
         assert train.main(args) == 0
     rc = train.main(["--task", "mjx_cartpole_balance", "--size", "debug", "--seeds", "0,1,2",
                      "--logdir", str(root / "three-s{seed}"), *flags, "train.devices=2"])
@@ -206,7 +207,8 @@ def test_seeds_spread_over_two_forced_host_devices_train_as_on_one(tmp_path):
     the metrics and scores of the same two seeds on one device, to float rounding."""
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
                JAX_PLATFORMS="cpu")
-    result = subprocess.run([sys.executable, "-c", SPREAD, str(tmp_path), *SHORT], cwd=ROOT,
+    flags = replaced(SHORT, "train.pretrain=0")
+    result = subprocess.run([sys.executable, "-c", SPREAD, str(tmp_path), *flags], cwd=ROOT,
                             env=env, capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
     assert "2 seeds in one program, spread over 2 devices" in result.stdout

@@ -17,6 +17,7 @@ import jax
 import numpy as np
 import pytest
 
+from tests.support.overrides import replaced
 from vsgjax import train
 from vsgjax.config import ConfigError, make_config
 from vsgjax.data import checkpoint
@@ -32,7 +33,8 @@ STEPS = 320  # prefill ends at 208 env steps (the first episodes end at 200, chu
 
 def configs(seeds, *overrides):
     return [make_config("bbs_basic", "vsg", "debug",
-                        [f"train.seed={s}", f"train.steps={STEPS}", *SHORT, *overrides])
+                        replaced([f"train.seed={s}", f"train.steps={STEPS}", *SHORT],
+                                 *overrides))
             for s in seeds]
 
 
