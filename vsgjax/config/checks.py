@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass, fields
 
 from vsgjax.config.schema import Config, ConfigError, EnvConfig
-from vsgjax.registry.tasks import device_families, family_of
+from vsgjax.registry.tasks import FAMILIES, device_families, family_of
 
 # Seeds up to 2**30 leave room below 2**31 for the evaluation envs' offset and the env index.
 MAX_SEED = 2**30
@@ -86,6 +86,7 @@ CHECKED_AT_START = ("train.devices",)
 ATARI_OPTIONS = ("env.grayscale", "env.sticky")
 # The partially observed and noisy variants of the device tasks (vsgjax/envs/mjx/variants.py);
 # whether the keys of env.hide and env.show_keys are the task's is checked where it is built.
+BACKGROUND_OPTIONS = ("env.background", "env.background_dir")
 VARIANT_OPTIONS = ("env.flicker", "env.hide", "env.show_keys", "env.show_steps",
                    "env.noise_dims", "env.noise_scale")
 
@@ -101,6 +102,7 @@ def check_config(config: Config) -> None:
     _check_starts(config)
     _check_atari_options(config)
     _check_variant_options(config)
+    _check_background_options(config)
 
 
 def numeric_values(config: Config) -> dict[str, float]:
@@ -198,3 +200,27 @@ def _check_variant_options(config: Config) -> None:
     if env.show_steps and not env.show_keys.strip():
         raise ConfigError(f"env.show_steps={env.show_steps} without env.show_keys; valid: "
                           "env.show_steps=0, or env.show_keys=<comma-separated observation keys>")
+
+
+def _check_background_options(config: Config) -> None:
+    """The backgrounds are DMC's; ``video`` needs ``env.background_dir`` (whether it holds two
+    videos or more is checked where the env is built, and by ``vsgjax.train`` first)."""
+    env, defaults = config.env, EnvConfig()
+    family = family_of(env.task)
+    if not family.backgrounds:
+        for key in BACKGROUND_OPTIONS:
+            name = key.partition(".")[2]
+            value, default = getattr(env, name), getattr(defaults, name)
+            if value != default:
+                patterns = ", ".join(f.pattern for f in FAMILIES.values() if f.backgrounds)
+                raise ConfigError(f"{key}={value!r} is an option of the {patterns} tasks; valid "
+                                  f"for task {env.task!r}: {key}={default!r}")
+        return
+    if env.background == "video":
+        if not env.background_dir:
+            raise ConfigError("env.background=video without env.background_dir; valid: "
+                              "env.background_dir=<a folder of at least 2 video files>")
+    elif env.background_dir:
+        raise ConfigError(f"env.background_dir={env.background_dir!r} with env.background="
+                          f"{env.background!r}; valid: env.background_dir='' (the folder is read "
+                          "only with env.background=video)")

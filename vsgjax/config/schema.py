@@ -23,10 +23,13 @@ PRECISIONS = ("float32", "bfloat16")  # model.precision: the dtype of matmuls an
 # wm.encoder: see vsgjax/agents/dreamer/world_model.py (check_encoders)
 ENCODERS = ("auto", "cnn", "mlp")
 LOOPS = ("auto", "host", "device")  # train.loop: see vsgjax/loop/device_program.py
+# env.background: see vsgjax/envs/backgrounds.py
+BACKGROUNDS = ("none", "video", "dots", "noise", "color")
 # String keys whose values are names from a fixed list (checked when a config is built).
 CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS,
            "optim.eps_placement": EPS_PLACEMENTS, "optim.weight_decay": WEIGHT_DECAYS,
-           "model.precision": PRECISIONS, "train.loop": LOOPS, "wm.encoder": ENCODERS}
+           "model.precision": PRECISIONS, "train.loop": LOOPS, "wm.encoder": ENCODERS,
+           "env.background": BACKGROUNDS}
 
 
 class ConfigError(ValueError):
@@ -153,6 +156,9 @@ class EnvConfig:
     show_steps: int = 0  # agent steps show_keys are visible (the reset is step 0); 0 = off
     noise_dims: int = 0  # extra observation dims following Gaussian random walks from 0
     noise_scale: float = 0.1  # the std of the noise dims' increment per agent step
+    # Distracting backgrounds of the dmc_ tasks (vsgjax/envs/backgrounds.py):
+    background: str = "none"  # none, video, dots, noise or color
+    background_dir: str = ""  # env.background=video: a folder of video files (>= 2)
 
 
 @dataclass(frozen=True)

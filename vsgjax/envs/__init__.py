@@ -85,7 +85,7 @@ def make_env(env_cfg: EnvConfig, seed: int, *, eval: bool = False) -> gymnasium.
                         "trains with the device loop (train.loop=device or auto) or, through "
                         "its vector env, the host loop (vsgjax.data.collect.make_env_batch)")
     seed = seed + EVAL_SEED_OFFSET if eval else seed
-    env = resolve(FAMILIES[family].build)(args, env_cfg, seed)
+    env = resolve(FAMILIES[family].build)(args, env_cfg, seed, eval)
     env = _normalize_actions(env)
     env_spec(env)  # validates the agent-facing contract
     return DefaultSeed(env, seed)

@@ -48,6 +48,6 @@ def parse(task: str, game: str) -> tuple[str]:
     return (one_of(task, game, all_games(), "Atari game"),)
 
 
-def build(args: tuple[str], cfg, seed: int) -> gymnasium.Env:
+def build(args: tuple[str], cfg, seed: int, eval: bool) -> gymnasium.Env:
     return make_atari(args[0], action_repeat=cfg.action_repeat, time_limit=cfg.time_limit,
                       size=cfg.image_size, grayscale=cfg.grayscale, sticky=cfg.sticky)

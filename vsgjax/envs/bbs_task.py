@@ -34,6 +34,6 @@ def parse(task: str, variant: str) -> tuple[str]:
     return (one_of(task, variant, variant_names(), "BringBackShapes variant"),)
 
 
-def build(args: tuple[str], cfg, seed: int) -> gymnasium.Env:
+def build(args: tuple[str], cfg, seed: int, eval: bool) -> gymnasium.Env:
     return make_bbs(args[0], action_repeat=cfg.action_repeat, time_limit=cfg.time_limit,
                     size=cfg.image_size)

@@ -11,6 +11,11 @@ Rendering runs on the CPU through OSMesa when no display is available (``MUJOCO_
 set here by default before dm_control is imported; ``make`` sets it too). There, drawing the
 2048x2048 shadow map dominates the cost of a 64x64 frame; a 512 map halves the render time and
 changes the image by 0.02 grey levels on average (measured on walker), so it is the default.
+
+With ``env.background`` set, every observation (reset and step) has a distracting background
+(:mod:`vsgjax.envs.backgrounds`) composited behind the agent; it restarts every episode from the
+env's RNG and advances one frame per observation. Evaluation envs play the test split of
+``env.background_dir``'s videos, training envs the train split.
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 import gymnasium  # noqa: E402
 import numpy as np  # noqa: E402
 
+from vsgjax.envs.backgrounds import composite, make_background  # noqa: E402
 from vsgjax.envs.spec import TaskError  # noqa: E402
 
 CAMERA_BY_DOMAIN = {"quadruped": 2}
@@ -43,7 +49,9 @@ class DMCEnv(gymnasium.Env):
     render_mode = "rgb_array"
 
     def __init__(self, domain: str, task: str, *, action_repeat: int, time_limit: int,
-                 size: int, seed: int):
+                 size: int, seed: int, background=None):
+        """``background``: a source of :mod:`vsgjax.envs.backgrounds` (None: the plain
+        scene)."""
         from dm_control import suite
 
         self._env = suite.load(domain, task, task_kwargs={"random": seed})
@@ -57,6 +65,8 @@ class DMCEnv(gymnasium.Env):
         self.action_space = gymnasium.spaces.Box(-1.0, 1.0, spec.shape, np.float32)
         self.observation_space = gymnasium.spaces.Box(0, 255, (size, size, 3), np.uint8)
         self._env_steps = 0
+        self._background = background
+        self._backdrop = None  # the background frame of the current observation
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -65,6 +75,8 @@ class DMCEnv(gymnasium.Env):
             self.action_space.seed(seed)
         self._env.reset()
         self._env_steps = 0
+        if self._background is not None:
+            self._backdrop = self._background.reset(self.np_random)
         return self._render(), {}
 
     def step(self, action):
@@ -79,13 +91,16 @@ class DMCEnv(gymnasium.Env):
             truncated = not terminated and (time_step.last() or self._env_steps >= self._time_limit)
             if terminated or truncated:
                 break
+        if self._background is not None:
+            self._backdrop = self._background.step()
         return self._render(), float(reward), terminated, truncated, {"env_steps": self._env_steps}
 
     def render(self):
         return self._render()
 
     def _render(self) -> np.ndarray:
-        return self._env.physics.render(self._size, self._size, camera_id=self._camera)
+        frame = self._env.physics.render(self._size, self._size, camera_id=self._camera)
+        return frame if self._backdrop is None else composite(frame, self._backdrop)
 
     def close(self):
         """Free the GL context now (at interpreter exit dm_control's own cleanup can fail)."""
@@ -102,6 +117,8 @@ def parse(task: str, rest: str) -> tuple[str, str]:
                     + ", ".join(f"{task.partition('_')[0]}_{d}_{t}" for d, t in pairs))
 
 
-def build(args: tuple[str, str], cfg, seed: int) -> gymnasium.Env:
+def build(args: tuple[str, str], cfg, seed: int, eval: bool) -> gymnasium.Env:
+    """The env of ``cfg``; an evaluation env (``eval``) plays the test split of the videos."""
+    background = make_background(cfg.background, cfg.image_size, cfg.background_dir, test=eval)
     return DMCEnv(*args, action_repeat=cfg.action_repeat, time_limit=cfg.time_limit,
-                  size=cfg.image_size, seed=seed)
+                  size=cfg.image_size, seed=seed, background=background)

@@ -22,8 +22,9 @@ class TaskFamily:
     """One family of tasks.
 
     ``parse``: ``"module:function"`` of ``(task, rest) -> args`` (raises TaskError);
-    ``build``: for a host family, ``"module:function"`` of ``(args, env_cfg, seed) ->
-    gymnasium.Env``; for a device family, of ``(env_cfg) -> task`` stepped inside JAX.
+    ``build``: for a host family, ``"module:function"`` of ``(args, env_cfg, seed, eval) ->
+    gymnasium.Env`` (``eval``: an evaluation env); for a device family, of ``(env_cfg) -> task``
+    stepped inside JAX.
     ``preset_column``: the column of the presets the family's tasks take (the paper's
     hyperparameter table has one per domain).
     """
@@ -38,6 +39,7 @@ class TaskFamily:
     parse: str
     build: str
     grayscale_sticky: bool = False  # takes env.grayscale and env.sticky (Atari's options)
+    backgrounds: bool = False  # takes env.background and env.background_dir (DMC's option)
     same_tasks_as: str = ""  # the family whose tasks these are, in another simulator
     extra_steps: int = 0  # env steps an episode runs past env.time_limit (BBS's original: 2)
     # its episodes end before env.time_limit as a rule (Atari's game over), so when the first
@@ -54,7 +56,7 @@ FAMILIES: dict[str, TaskFamily] = {family.prefix: family for family in (
                "vsgjax.envs.bbs_task:parse", "vsgjax.envs.bbs_task:build", extra_steps=2),
     TaskFamily("dmc", "dmc_<domain>_<task>", "DeepMind Control Suite from pixels",
                "dmc", False, IMAGE, CONTINUOUS,
-               "vsgjax.envs.dmc:parse", "vsgjax.envs.dmc:build"),
+               "vsgjax.envs.dmc:parse", "vsgjax.envs.dmc:build", backgrounds=True),
     TaskFamily("atari", "atari_<game>", "Atari through ale-py, DreamerV2's settings",
                "atari", False, IMAGE, DISCRETE,
                "vsgjax.envs.atari:parse", "vsgjax.envs.atari:build", grayscale_sticky=True,
