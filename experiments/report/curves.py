@@ -15,10 +15,10 @@ from experiments.report.context import Context
 from experiments.report.style import (
     colour,
     hide_unused,
-    missing_note,
     panel_grid,
     save_figure,
     step_label,
+    write_missing_note,
 )
 from experiments.spec import Run
 
@@ -98,10 +98,7 @@ def draw_curves(data: CurvesData, stem: Path, title: str = "") -> list[Path]:
                 (handle,) = ax.plot(line.x, line.mean, color=c, lw=1.2, ls="--",
                                     label=line.label)
             handles.setdefault(line.label, handle)
-        note = missing_note([r for r in data.missing if r.task == task], 4, 45, False)
-        if note:
-            ax.text(0.02, 0.98, note, transform=ax.transAxes, va="top", fontsize=6,
-                    color="firebrick")
+        write_missing_note(ax, [r for r in data.missing if r.task == task])
         if not data.lines[task]:
             ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", color="gray")
         ax.set_title(task, fontsize=9)

@@ -25,10 +25,10 @@ from experiments.report.runs import is_number, read_jsonl, run_name, warn
 from experiments.report.style import (
     colour,
     markdown_table,
-    missing_note,
     panel_grid,
     save_figure,
     step_label,
+    write_missing_note,
 )
 from experiments.spec import Run
 from vsgjax.loop.rundir import OPEN_LOOP_ERRORS, OPEN_LOOP_FILE, OPEN_LOOP_STEPS
@@ -164,10 +164,7 @@ def draw_open_loop(data: OpenLoopData, stem: Path, title: str = "") -> list[Path
             if not data.lines[task][name]:
                 ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", color="gray")
             if offset == 0:
-                note = missing_note([r for r in data.missing if r.task == task], 4, 45, False)
-                if note:
-                    ax.text(0.02, 0.98, note, transform=ax.transAxes, va="top", fontsize=6,
-                            color="firebrick")
+                write_missing_note(ax, [r for r in data.missing if r.task == task])
             ax.set_title(f"{task}: {PANELS[name]}", fontsize=9)
             ax.set_xlabel("imagined step", fontsize=8)
             ax.set_ylabel("MSE", fontsize=8)

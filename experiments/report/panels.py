@@ -26,10 +26,10 @@ from experiments.report.style import (
     fmt,
     hide_unused,
     markdown_table,
-    missing_note,
     panel_grid,
     save_figure,
     step_label,
+    write_missing_note,
 )
 from experiments.spec import Run
 from vsgjax.loop.rundir import METRICS_FILE
@@ -132,10 +132,7 @@ def draw_panel(ax, panel: Panel, data: PanelsData) -> None:
     else:
         ax.text(0.5, 0.5, NO_RUNS, transform=ax.transAxes, ha="center", color="gray")
     absent = [r for r in data.missing if r.task == panel.task and r.method in panel.methods]
-    note = missing_note(absent, 4, 45, False)
-    if note:
-        ax.text(0.02, 0.98, note, transform=ax.transAxes, va="top", fontsize=6,
-                color="firebrick")
+    write_missing_note(ax, absent)
     ax.set_title(f"{panel.title}\n({panel.task})", fontsize=8)
     ax.set_xlabel("env steps", fontsize=8)
     ax.set_ylabel("eval return", fontsize=8)

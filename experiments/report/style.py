@@ -52,6 +52,14 @@ def missing_note(runs: list[Run], limit: int = FIGURE_NOTE_RUNS, width: int = 0,
     return textwrap.fill(note, width) if width else note
 
 
+def write_missing_note(ax, runs: list[Run], width: int = 45) -> None:
+    """The red ``missing: ...`` note of a panel's missing runs in its top left corner."""
+    note = missing_note(runs, 4, width, False)
+    if note:
+        ax.text(0.02, 0.98, note, transform=ax.transAxes, va="top", fontsize=6,
+                color="firebrick")
+
+
 def save_figure(figure: Figure, stem: Path) -> list[Path]:
     """``stem``.png and ``stem``.pdf."""
     stem.parent.mkdir(parents=True, exist_ok=True)

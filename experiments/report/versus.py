@@ -18,9 +18,9 @@ from experiments.report.runs import Curve
 from experiments.report.style import (
     colour,
     markdown_table,
-    missing_note,
     save_figure,
     step_label,
+    write_missing_note,
 )
 from experiments.spec import Run
 
@@ -119,10 +119,7 @@ def draw_versus(data: VersusData, stem: Path, title: str = "") -> list[Path]:
             wall_ax.axvline(data.budget_minutes, color="gray", lw=0.8)
         wall_ax.set_ylim(steps_ax.get_ylim())
         wall_ax.set_xlim(left=0, right=max(wall_ax.get_xlim()[1], data.budget_minutes or 0))
-        note = missing_note([r for r in data.missing if r.task == task], 4, 40, False)
-        if note:
-            steps_ax.text(0.02, 0.98, note, transform=steps_ax.transAxes, va="top", fontsize=6,
-                          color="firebrick")
+        write_missing_note(steps_ax, [r for r in data.missing if r.task == task], 40)
         steps_ax.set_title(task, fontsize=9)
         steps_ax.set_xlabel("env steps", fontsize=8)
         wall_ax.set_xlabel("wall minutes (each seed)", fontsize=8)
