@@ -19,18 +19,22 @@ TASKS = ("bbs_basic", "dmc_walker_walk", "atari_pong", "mjx_cartpole_swingup")
 
 def test_every_preset_is_valid():
     """Every model, task family and size that fit together resolve (DrQ-v2 acts in continuous
-    action spaces only, the cpu size reads vectors only)."""
+    action spaces only, DreamerPro and VSGPro read images only, the cpu size reads vectors
+    only)."""
     resolved = 0
     for task in TASKS:
         family = family_of(task)
         for model in MODELS:
             for size in SIZES:
-                fits = family.actions in agent_entry(model).actions and (
+                entry = agent_entry(model)
+                fits = family.actions in entry.actions and (
+                    family.observations in entry.observations) and (
                     size not in VECTOR_SIZES or family.observations == VECTOR)
                 if fits:
                     make_config(task, model, size)
                     resolved += 1
-    assert resolved == 4 * 5 * 3 + 5 + 3 * 3 + 1  # Dreamer: 4 tasks x 3 sizes + cpu; DrQ-v2
+    # Dreamer: 5 models x 4 tasks x 3 sizes + cpu; DrQ-v2; DreamerPro, VSGPro: 3 image tasks
+    assert resolved == 5 * 4 * 3 + 5 + 3 * 3 + 1 + 2 * 3 * 3
 
 
 def test_every_numeric_key_has_a_range():

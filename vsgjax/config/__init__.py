@@ -40,6 +40,7 @@ from vsgjax.config.schema import (
     EnvConfig,
     ModelConfig,
     OptimConfig,
+    PrototypeConfig,
     TrainConfig,
     WorldModelConfig,
     apply_overrides,
@@ -55,7 +56,7 @@ __all__ = [
     "ACTOR_GRADS", "ALIGNMENTS", "CHOICES", "DOMAINS", "ENCODERS", "EPS_PLACEMENTS", "LOOPS",
     "MODELS", "PRECISIONS", "RANGES", "SIZES", "VECTOR_SIZES",
     "WEIGHT_DECAYS", "BehaviourConfig", "Config", "ConfigError", "DrQConfig", "EnvConfig",
-    "ModelConfig",
-    "OptimConfig", "TrainConfig", "WorldModelConfig", "apply_overrides", "apply_values",
+    "ModelConfig", "OptimConfig", "PrototypeConfig", "TrainConfig", "WorldModelConfig",
+    "apply_overrides", "apply_values",
     "check_config", "config_changes", "from_dict", "make_config", "preset_column", "to_dict",
 ]

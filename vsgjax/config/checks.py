@@ -70,6 +70,11 @@ RANGES = {
     "drq.frame_stack": AT_LEAST_1, "drq.nstep": AT_LEAST_1, "drq.gamma": UNIT, "drq.tau": UNIT,
     "drq.lr": POSITIVE, "drq.std_start": AT_LEAST_0, "drq.std_end": AT_LEAST_0,
     "drq.std_steps": AT_LEAST_1, "drq.std_clip": AT_LEAST_0, "drq.shift_pad": AT_LEAST_0,
+    "proto.prototypes": AT_LEAST_1, "proto.dim": AT_LEAST_1, "proto.temperature": POSITIVE,
+    "proto.sinkhorn_eps": POSITIVE, "proto.sinkhorn_iters": AT_LEAST_1,
+    "proto.warm_up": AT_LEAST_0, "proto.freeze_updates": AT_LEAST_0, "proto.ema_fraction": UNIT,
+    "proto.shift": AT_LEAST_0, "proto.swav_scale": AT_LEAST_0, "proto.temp_scale": AT_LEAST_0,
+    "proto.norm_scale": AT_LEAST_0,
     "env.action_repeat": AT_LEAST_1, "env.time_limit": AT_LEAST_1, "env.image_size": AT_LEAST_1,
     "env.sticky": UNIT, "env.num_envs": AT_LEAST_1, "env.eval_envs": AT_LEAST_1,
     "env.flicker": Range(0, 1, open_high=True), "env.show_steps": AT_LEAST_0,
@@ -100,6 +105,7 @@ def check_config(config: Config) -> None:
     _check_horizon(config)
     _check_sequences(config)
     _check_starts(config)
+    _check_warm_up(config)
     _check_atari_options(config)
     _check_variant_options(config)
     _check_background_options(config)
@@ -129,6 +135,13 @@ def max_episode_steps(config: Config) -> int:
     env = config.env
     env_steps = env.time_limit + family_of(env.task).extra_steps
     return math.ceil(env_steps / env.action_repeat) + 1
+
+
+def _check_warm_up(config: Config) -> None:
+    if config.proto.warm_up >= config.train.length:
+        raise ConfigError(f"config key 'proto.warm_up' got {config.proto.warm_up}, which leaves "
+                          f"no step of a train.length={config.train.length} sequence to the "
+                          f"prototype losses; valid: < train.length")
 
 
 def _check_horizon(config: Config) -> None:

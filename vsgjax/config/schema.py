@@ -140,6 +140,26 @@ class DrQConfig:
 
 
 @dataclass(frozen=True)
+class PrototypeConfig:
+    """DreamerPro's prototypical representation (fdeng18/dreamer-pro, ``configs.yaml``;
+    vsgjax/agents/dreamer/prototypes.py): read by the ``prototypes`` models (dreamerpro,
+    vsgpro) instead of a decoder."""
+
+    prototypes: int = 2500  # number of prototypes
+    dim: int = 32  # the projections' and prototypes' size
+    temperature: float = 0.1  # of the softmax over prototypes
+    sinkhorn_eps: float = 0.05  # Sinkhorn's entropic regulariser (0.0125 in the dmc column)
+    sinkhorn_iters: int = 3
+    warm_up: int = 1  # first timesteps of each sequence left out of the prototype losses
+    freeze_updates: int = 10_000  # updates during which the prototypes' gradient is zero
+    ema_fraction: float = 0.05  # per update, of the target encoder and projection
+    shift: float = 3.0  # augmentation: one shift per sequence, uniform in [-shift, shift] px
+    swav_scale: float = 1.0
+    temp_scale: float = 1.0
+    norm_scale: float = 1.0  # the release's standard-DMC runs turned it off (norm_off: 0)
+
+
+@dataclass(frozen=True)
 class EnvConfig:
     task: str = DEFAULT_TASK
     action_repeat: int = 4
@@ -190,6 +210,7 @@ class Config:
     ac: BehaviourConfig = field(default_factory=BehaviourConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     drq: DrQConfig = field(default_factory=DrQConfig)
+    proto: PrototypeConfig = field(default_factory=PrototypeConfig)
     env: EnvConfig = field(default_factory=EnvConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 

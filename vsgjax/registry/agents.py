@@ -30,7 +30,8 @@ class AgentEntry:
     """One ``--model`` name.
 
     ``options``: family-specific facts as ``(key, value)`` pairs (the Dreamer family's
-    ``dynamics``: the name of its latent dynamics class in ``vsgjax/agents/dreamer/dynamics/``).
+    ``dynamics``: the name of its latent dynamics class in ``vsgjax/agents/dreamer/dynamics/``;
+    its ``representation``: ``reconstruction``, the default, or ``prototypes``, DreamerPro's).
     """
 
     name: str
@@ -46,8 +47,11 @@ class AgentEntry:
     by_size: dict = field(default_factory=dict, hash=False)
     options: tuple[tuple[str, str], ...] = ()
 
-    def option(self, key: str) -> str:
-        return dict(self.options)[key]
+    def option(self, key: str, default: str | None = None) -> str:
+        value = dict(self.options).get(key, default)
+        if value is None:
+            raise KeyError(f"model {self.name!r} has no option {key!r}")
+        return value
 
     def takes(self, key: str) -> bool:
         """Whether a dotted config key is one this agent reads."""
@@ -58,6 +62,14 @@ class AgentEntry:
 _DREAMER = "vsgjax.agents.dreamer.agent:DreamerAgent"
 _DREAMER_PRESETS = "vsgjax.agents.dreamer.presets"
 _DREAMER_SECTIONS = ("model", "wm", "ac", "optim")
+# DreamerPro (fdeng18/dreamer-pro, configs.yaml: `defaults` then `dmc`): no decoder, prototypes;
+# its DMC world model and actor-critic sizes, in the layer after the family's column.
+_PRO_SECTIONS = (*_DREAMER_SECTIONS, "proto")
+_PRO_DMC = {"model.deter": 200, "model.hidden": 200, "wm.cnn_depth": 48, "wm.reward_layers": 4,
+            "wm.weight_decay": 1e-6, "wm.reward_scale": 1.0, "ac.critic_layers": 4,
+            "ac.weight_decay": 1e-6, "train.prefill": 5000,
+            "train.length": 51, "train.eval_episodes": 10, "proto.sinkhorn_eps": 0.0125}
+_PRO_OPTIONS = (("dynamics", "RSSM"), ("representation", "prototypes"))
 
 AGENTS: dict[str, AgentEntry] = {entry.name: entry for entry in (
     AgentEntry(
@@ -98,6 +110,19 @@ AGENTS: dict[str, AgentEntry] = {entry.name: entry for entry in (
                  "debug": {"model.deter": 0, "model.stoch": 8}},
         options=(("dynamics", "SSM"),)),
     AgentEntry(
+        "dreamerpro", "DreamerPro", _DREAMER, _DREAMER_PRESETS, _PRO_SECTIONS,
+        observations=(IMAGE,),
+        model={"model.stoch": 32, "model.classes": 0, "model.cell_norm": True},
+        by_column={"dmc": _PRO_DMC}, by_size={"debug": {"model.stoch": 8}},
+        options=_PRO_OPTIONS),
+    AgentEntry(
+        # the VSG paper's VSGPro: DreamerPro with VSG's sparse-gated cell and sparsity loss
+        "vsgpro", "VSGPro", _DREAMER, _DREAMER_PRESETS, _PRO_SECTIONS, gated=True,
+        observations=(IMAGE,),
+        model={"model.stoch": 32, "model.classes": 0, "model.cell_norm": False},
+        by_column={"dmc": _PRO_DMC}, by_size={"debug": {"model.stoch": 8}},
+        options=_PRO_OPTIONS),
+    AgentEntry(
         "drqv2", "DrQ-v2", "vsgjax.agents.drqv2.agent:DrQV2Agent",
         "vsgjax.agents.drqv2.presets", ("drq",), actions=(CONTINUOUS,)),
 )}
@@ -116,6 +141,12 @@ def agent_entry(name: str) -> AgentEntry:
 def dreamer_models() -> tuple[str, ...]:
     """The models of the Dreamer family (a world model with latent dynamics)."""
     return tuple(name for name, entry in AGENTS.items() if entry.implementation == _DREAMER)
+
+
+def prototype_models() -> tuple[str, ...]:
+    """The Dreamer models that learn from prototypes instead of a decoder (DreamerPro's)."""
+    return tuple(name for name, entry in AGENTS.items()
+                 if entry.option("representation", "reconstruction") == "prototypes")
 
 
 def gated_models() -> tuple[str, ...]:

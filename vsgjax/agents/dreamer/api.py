@@ -158,8 +158,9 @@ def imagine(params: dict | TrainedParams, state: Any, H: int = 15, *,
     Returns a dict of arrays with leading dims ``[..., H]``: the imagined ``states`` (the
     state after each action; the start state is not repeated), ``actions``, ``feats``,
     ``rewards``, ``discounts``, and the decoded observations: ``images`` (uint8) and
-    ``image_means`` (float, [-0.5, 0.5]) when the model has an image, ``vectors`` (``{key:
-    mean [..., H, D]}``) when it has vector keys.
+    ``image_means`` (float, [-0.5, 0.5]) when the model has an image and a decoder (not the
+    prototype models, DreamerPro's), ``vectors`` (``{key: mean [..., H, D]}``) when it has
+    vector keys.
     Pure and jit-friendly: ``jax.jit(lambda p, s: imagine(p, s, H=15))(run.params, state)``.
     """
     actor = actor_params = None
@@ -225,7 +226,7 @@ def _imagine_flat(model: WorldModel, params: dict, start: Any, H: int, key: jax.
         "rewards": model.reward_mean(params, feats),
         "discounts": model.discount(params, feats),
     }
-    if model.has_image:
+    if model.has_image and model.decodes:
         means = model.decode_frames(params, feats)
         out.update(images=float_to_image(means), image_means=means)
     if model.vector_keys:

@@ -108,6 +108,8 @@ def open_loop_errors(config: Config, wm_params: dict, episodes: dict, key: jax.A
     vectors as recorded. ``reward_mse``: the reward head's mean against the recorded reward, in
     the head's units (``tanh(reward)`` when ``wm.reward_tanh``), averaged over the episodes.
     One sample of the latent states per episode (``key`` as :func:`observe_then_imagine`).
+    A model without a decoder (DreamerPro's prototypes) predicts no observation: its
+    ``obs_mse`` is NaN (null in ``open_loop.jsonl``).
     Pure JAX: jitted, and usable inside a compiled program (the device loop's evaluation).
     """
     if context < 1 or horizon < 1:
@@ -128,8 +130,10 @@ def _errors(config: Config, wm_params: dict, seq: dict, key: jax.Array, context:
     model = api.world_model_for(config, wm_params)
     _, imagined = observe_then_imagine(config, wm_params, seq, key, context, horizon)
     truth = {k: v[:, context:] for k, v in seq.items()}
-    squared, values = [], 0
-    if model.has_image:
+    squared, values = [jnp.full((seq["action"].shape[0], horizon), jnp.nan)], 0
+    if model.decodes:
+        squared, values = [], 0
+    if model.has_image and model.decodes:
         error = imagined["image_means"].astype(jnp.float32) - image_to_float(truth[IMAGE_KEY])
         squared.append(jnp.square(error).reshape(error.shape[:2] + (-1,)).sum(-1))
         values += int(np.prod(error.shape[2:]))
@@ -138,7 +142,7 @@ def _errors(config: Config, wm_params: dict, seq: dict, key: jax.Array, context:
                  - truth[name].astype(jnp.float32))
         squared.append(jnp.square(error).sum(-1))
         values += error.shape[-1]
-    obs_mse = (sum(squared) / values).mean(0)
+    obs_mse = (sum(squared) / max(values, 1)).mean(0)
     reward = truth["reward"].astype(jnp.float32)
     if config.wm.reward_tanh:
         reward = jnp.tanh(reward)
@@ -178,8 +182,8 @@ def open_loop_video(config: Config, wm_params: dict, episode: dict, key: jax.Arr
                     ) -> np.ndarray | None:
     """Frames for the run's open-loop video, shortening context and horizon (in the 15:35
     ratio, :func:`shortened`) for short episodes or sequences; None when the episode has fewer
-    than 4 steps or no images (:func:`has_video`)."""
-    if not has_video(episode):
+    than 4 steps, no images (:func:`has_video`) or a model without a decoder."""
+    if not has_video(episode) or not api.world_model_for(config, wm_params).decodes:
         return None
     split = shortened(len(episode["image"]))
     if split is None:

@@ -2,6 +2,11 @@
 
     L = -ln p(x|s) - reward_scale ln p(r|s) [- discount_scale ln p(γ|s)] + L_kl + L_gate
 
+The ``prototypes`` models (DreamerPro, VSGPro) have no decoder: ``-ln p(x|s)`` is replaced by
+DreamerPro's prototype losses (:mod:`vsgjax.agents.dreamer.prototypes`), computed over the
+whole batch of two augmented views, with targets from an EMA copy of the encoder and its
+projection (``targets``, kept by the agent).
+
 (the discount head's target is γ·(1 − is_terminal) with ``ac.alignment=release``, as the
 release; 1 − is_terminal with ``next_state``)
 
@@ -37,7 +42,7 @@ from collections.abc import Mapping, Sequence
 import jax
 import jax.numpy as jnp
 
-from vsgjax.agents.dreamer import gates
+from vsgjax.agents.dreamer import gates, prototypes
 from vsgjax.agents.dreamer.dynamics import make_dynamics
 from vsgjax.agents.dreamer.networks import (
     DECODER_KERNELS,
@@ -55,9 +60,11 @@ from vsgjax.agents.dreamer.networks import (
 from vsgjax.agents.precision import compute_dtype
 from vsgjax.config import Config, ConfigError
 from vsgjax.observations import IMAGE_KEY, ObsSpec, obs_spec
+from vsgjax.registry.agents import agent_entry
 
 sg = jax.lax.stop_gradient
 IMAGE_SIZE = 64  # the CNN encodes and decodes 64x64 images
+RECONSTRUCTION, PROTOTYPES = "reconstruction", "prototypes"  # a registry entry's representation
 
 
 def per_step_kl(dyn, lhs, rhs, mask: jax.Array | None = None) -> jax.Array:
@@ -106,11 +113,15 @@ def check_encoders(spec: ObsSpec, encoder: str) -> None:
 
 
 def obs_spec_of(params: dict) -> ObsSpec:
-    """The observation spec world-model ``params`` were built for, read from the decoders."""
+    """The observation spec world-model ``params`` were built for, read from the decoders (the
+    encoder's first kernel without a decoder)."""
     shapes = {}
     if "decoder" in params:
         channels = params["decoder"][f"ConvTranspose2_{len(DECODER_KERNELS) - 1}"]["bias"]
         shapes[IMAGE_KEY] = (IMAGE_SIZE, IMAGE_SIZE, channels.shape[-1])
+    elif "encoder" in params:
+        channels = params["encoder"]["Conv2_0"]["kernel"].shape[-2]
+        shapes[IMAGE_KEY] = (IMAGE_SIZE, IMAGE_SIZE, channels)
     for name, head in params.get("mlp_decoder", {}).items():
         if name.startswith(HEAD_PREFIX):
             shapes[name.removeprefix(HEAD_PREFIX)] = (head["bias"].shape[-1],)
@@ -132,6 +143,9 @@ class WorldModel:
     def __post_init__(self):
         spec = obs_spec(self.obs_shape)
         check_encoders(spec, self.config.wm.encoder)
+        if self.uses_prototypes and (spec.vector_keys or not spec.image_keys):
+            raise ValueError(f"model {self.config.model.name!r} learns from prototypes of "
+                             f"the image alone; the observation spec is {spec.shapes}")
         object.__setattr__(self, "obs_shape", spec)
 
     # --- modules ---------------------------------------------------------------------------
@@ -143,6 +157,17 @@ class WorldModel:
     @property
     def vector_keys(self) -> tuple[str, ...]:
         return self.obs_shape.vector_keys
+
+    @property
+    def uses_prototypes(self) -> bool:
+        """Whether the model learns from prototypes (DreamerPro) rather than a decoder."""
+        entry = agent_entry(self.config.model.name)
+        return entry.option("representation", RECONSTRUCTION) == PROTOTYPES
+
+    @property
+    def decodes(self) -> bool:
+        """Whether the model has decoders (every model but the prototype ones)."""
+        return not self.uses_prototypes
 
     @functools.cached_property
     def dynamics(self):
@@ -163,6 +188,11 @@ class WorldModel:
                            self.dtype)
 
     @property
+    def projection(self) -> MLP:
+        """DreamerPro's ``obs_proj`` / ``feat_proj``: one linear layer to ``proto.dim``."""
+        return MLP(0, 1, (self.config.proto.dim,), dtype=self.dtype)
+
+    @property
     def mlp_encoder(self) -> MLPEncoder:
         return MLPEncoder(self.config.wm.mlp_layers, self.config.wm.mlp_units, self.dtype)
 
@@ -175,6 +205,8 @@ class WorldModel:
     def reconstruction_sizes(self) -> dict[str, int]:
         """``{"image": pixel values, "vector": vector entries}`` of the decoders there are: the
         names of the ``<name>_loss`` / ``<name>_mse`` metrics."""
+        if self.uses_prototypes:
+            return {}
         sizes = {"image": math.prod(self.obs_shape.shapes[IMAGE_KEY])} if self.has_image else {}
         if self.vector_keys:
             sizes["vector"] = self.obs_shape.vector_size
@@ -202,7 +234,7 @@ class WorldModel:
     def init(self, key: jax.Array) -> dict:
         """Parameters ``{[encoder, decoder,] [mlp_encoder, mlp_decoder,] dynamics, reward[,
         discount]}`` (plain nested dicts): the CNN pair with an image, the MLP pair with vector
-        keys.
+        keys; with prototypes ``{encoder, proto, dynamics, reward}`` (no decoder).
 
         Pure; wrap in ``jax.jit`` (as :func:`vsgjax.agents.dreamer.api.init` does) to compile
         the many
@@ -215,7 +247,10 @@ class WorldModel:
         if self.has_image:
             image = jax.ShapeDtypeStruct(self.obs_shape.shapes[IMAGE_KEY], jnp.float32)
             params["encoder"] = self.encoder.lazy_init(k_enc, image)["params"]
-            params["decoder"] = self.decoder.lazy_init(k_dec, feat)["params"]
+            if self.uses_prototypes:
+                params["proto"] = self._init_prototypes(k_dec, feat)
+            else:
+                params["decoder"] = self.decoder.lazy_init(k_dec, feat)["params"]
         if self.vector_keys:
             vector = jax.ShapeDtypeStruct((self.obs_shape.vector_size,), jnp.float32)
             params["mlp_encoder"] = self.mlp_encoder.lazy_init(
@@ -227,6 +262,54 @@ class WorldModel:
         if self.config.wm.discount_head:
             params["discount"] = self.discount_head.lazy_init(k_dis, feat)["params"]
         return params
+
+    def _init_prototypes(self, key: jax.Array, feat: jax.ShapeDtypeStruct) -> dict:
+        """``{prototypes [K, D] ~ N(0, 1), obs_proj, feat_proj}`` (the release's RSSM and its
+        ``proto_loss`` layers)."""
+        k_proto, k_obs, k_feat = jax.random.split(key, 3)
+        proto = self.config.proto
+        embed = jax.ShapeDtypeStruct((self.embed_size,), jnp.float32)
+        return {"prototypes": jax.random.normal(k_proto, (proto.prototypes, proto.dim)),
+                "obs_proj": self.projection.lazy_init(k_obs, embed)["params"],
+                "feat_proj": self.projection.lazy_init(k_feat, feat)["params"]}
+
+    def init_targets(self, key: jax.Array) -> dict:
+        """The EMA target networks ``{encoder, obs_proj}`` of a prototype model, initialised
+        on their own (the release's ``_ema_encoder``, ``_ema_obs_proj``; its first update copies
+        the online networks into them: :meth:`update_targets`)."""
+        k_enc, k_proj = jax.random.split(key)
+        image = jax.ShapeDtypeStruct(self.obs_shape.shapes[IMAGE_KEY], jnp.float32)
+        embed = jax.ShapeDtypeStruct((self.embed_size,), jnp.float32)
+        return {"encoder": self.encoder.lazy_init(k_enc, image)["params"],
+                "obs_proj": self.projection.lazy_init(k_proj, embed)["params"]}
+
+    def update_targets(self, params: dict, targets: dict, step: jax.Array) -> dict:
+        """The targets after update ``step``: an EMA of the online encoder and ``obs_proj``
+        with ``proto.ema_fraction``, a copy after the first update."""
+        online = {"encoder": params["encoder"], "obs_proj": params["proto"]["obs_proj"]}
+        return prototypes.ema_update(online, targets, self.config.proto.ema_fraction, step == 0)
+
+    def training_views(self, params: dict, batch: dict, key: jax.Array) -> tuple[dict, dict]:
+        """What one update trains on: ``(params, batch)`` as they are for a reconstruction
+        model; for a prototype model the prototypes L2-normalised (the release assigns them
+        normalised before every loss) and the batch as two augmented views ``[2B, T]``."""
+        if not self.uses_prototypes:
+            return params, batch
+        proto = dict(params["proto"], prototypes=prototypes.l2_normalize(
+            params["proto"]["prototypes"]))
+        floats = dict(batch, **{IMAGE_KEY: image_to_float(batch[IMAGE_KEY])})
+        return dict(params, proto=proto), prototypes.two_views(floats, key,
+                                                               self.config.proto.shift)
+
+    def freeze_prototypes(self, grads: dict, step: jax.Array) -> dict:
+        """``grads`` with the prototypes' gradient zeroed for the first ``proto.freeze_updates``
+        updates (no-op for a reconstruction model)."""
+        if not self.uses_prototypes:
+            return grads
+        frozen = step < self.config.proto.freeze_updates
+        proto = dict(grads["proto"], prototypes=prototypes.freeze(grads["proto"]["prototypes"],
+                                                                  frozen))
+        return dict(grads, proto=proto)
 
     # --- pieces the actor-critic and notebooks use (any leading batch dims) -----------------
 
@@ -255,6 +338,9 @@ class WorldModel:
 
     def decode(self, params: dict, feat: jax.Array) -> jax.Array:
         """Features [..., F] -> mean image [..., 64, 64, C] in [-0.5, 0.5] units."""
+        if not self.decodes:
+            raise ValueError(f"model {self.config.model.name!r} has no decoder: it learns "
+                             f"from prototypes, and its states cannot be drawn as images")
         if not self.has_image:
             raise ValueError(f"no image to decode: the observation spec is "
                              f"{self.obs_shape.shapes} (decode_vectors decodes vector keys)")
@@ -301,9 +387,10 @@ class WorldModel:
         prob = jax.nn.sigmoid(self.discount_logits(params, feat))
         return prob if self.discount_head_includes_gamma else gamma * prob
 
-    def observe(self, params: dict, seq: dict, key: jax.Array):
-        """Posterior and prior states [T, ...] of one sequence (dict of [T, ...] arrays)."""
-        embeds = self.encode(params, seq)
+    def observe(self, params: dict, seq: dict, key: jax.Array, embeds: jax.Array | None = None):
+        """Posterior and prior states [T, ...] of one sequence (dict of [T, ...] arrays);
+        ``embeds`` [T, E] when the caller has encoded it already."""
+        embeds = self.encode(params, seq) if embeds is None else embeds
         return self.dynamics.observe(params["dynamics"], embeds, seq["action"].astype(jnp.float32),
                                      seq["is_first"], key)
 
@@ -315,11 +402,12 @@ class WorldModel:
         Returns ``(terms, posts)``; :meth:`loss` vmaps this over the batch.
         """
         wm, dyn = self.config.wm, self.dynamics
-        posts, priors = self.observe(params, seq, key)
+        embeds = self.encode(params, seq)
+        posts, priors = self.observe(params, seq, key, embeds)
         feats = jax.vmap(dyn.feat)(posts)
         reward = jnp.tanh(seq["reward"]) if wm.reward_tanh else seq["reward"]
         terms = {
-            **self._obs_log_probs(params, feats, seq),
+            **self._observation_terms(params, embeds, feats, seq),
             "reward_logp": normal_log_prob(self.reward_mean(params, feats), reward),
             "kl_rep": self._kl(posts, sg(priors), posts),
             "kl_dyn": self._kl(sg(posts), priors, posts),
@@ -334,6 +422,16 @@ class WorldModel:
             terms["gate_sample"] = jax.vmap(dyn.gates)(posts)[0]
             terms["gate_logit"] = jax.vmap(dyn.gate_logits)(posts)
         return terms, posts
+
+    def _observation_terms(self, params: dict, embeds: jax.Array, feats: jax.Array,
+                           seq: dict) -> dict:
+        """The observation's per-step terms: its log-likelihoods, or with prototypes the raw
+        projections ``obs_proj`` (of the embedding) and ``feat_proj`` (of the features), [T, D],
+        for the batch-wide prototype losses."""
+        if not self.uses_prototypes:
+            return self._obs_log_probs(params, feats, seq)
+        project = lambda name, x: self.projection.apply({"params": params["proto"][name]}, x)
+        return {"obs_proj": project("obs_proj", embeds), "feat_proj": project("feat_proj", feats)}
 
     def _obs_log_probs(self, params: dict, feats: jax.Array, seq: dict) -> dict:
         """``image_logp`` (summed over pixels) and/or ``vector_logp`` (summed over every
@@ -369,13 +467,18 @@ class WorldModel:
                 f"{self.config.model.name!r} has gates {sample.shape[1:]} and KL {latent_shape}")
         return sample
 
-    def loss(self, params: dict, batch: dict, key: jax.Array):
+    def loss(self, params: dict, batch: dict, key: jax.Array, targets: dict | None = None):
         """World-model loss of a [B, T] batch -> ``(loss, (metrics, posts))``.
 
         ``posts`` are the posterior states with leading [B, T] dims (the actor-critic's start
         states). ``metrics`` holds every loss term, both KL directions, entropies and gate stats.
+        A prototype model takes the batch of :meth:`training_views` and its EMA ``targets``.
         """
         wm = self.config.wm
+        if self.uses_prototypes and targets is None:
+            raise ValueError(f"model {self.config.model.name!r} learns from prototypes: its "
+                             f"loss needs the EMA target networks (WorldModel.init_targets); "
+                             f"train it through vsgjax.agents.make_agent")
         keys = jax.random.split(key, batch["is_first"].shape[0])
         terms, posts = jax.vmap(self.sequence_terms, in_axes=(None, 0, 0))(params, batch, keys)
         kl_rep, kl_dyn = terms["kl_rep"].mean(), terms["kl_dyn"].mean()
@@ -387,6 +490,8 @@ class WorldModel:
         })
         if wm.discount_head:
             losses["discount_loss"] = -wm.discount_scale * terms["discount_logp"].mean()
+        if self.uses_prototypes:
+            losses.update(self._prototype_losses(params, batch, terms, targets))
         metrics = {f"{name}_mse": gaussian_mse(losses[f"{name}_loss"], size)
                    for name, size in recon.items()}
         metrics.update({
@@ -404,6 +509,21 @@ class WorldModel:
         loss = sum(losses.values())
         metrics.update(losses, loss=loss)
         return loss, (metrics, posts)
+
+
+    def _prototype_losses(self, params: dict, batch: dict, terms: dict, targets: dict) -> dict:
+        """``swav_loss``, ``temp_loss``, ``norm_loss`` (scaled) of the batch's two views, the
+        targets' projections (L2-normalised, no gradient) scored against the prototypes."""
+        proto = self.config.proto
+        embed = self.encoder.apply({"params": targets["encoder"]}, batch[IMAGE_KEY])
+        ema_proj = prototypes.l2_normalize(
+            self.projection.apply({"params": targets["obs_proj"]}, embed).astype(jnp.float32))
+        raw = prototypes.prototype_losses(
+            params["proto"]["prototypes"], terms["obs_proj"], terms["feat_proj"], sg(ema_proj),
+            temperature=proto.temperature, sinkhorn_eps=proto.sinkhorn_eps,
+            sinkhorn_iters=proto.sinkhorn_iters, warm_up=proto.warm_up)
+        scales = {"swav": proto.swav_scale, "temp": proto.temp_scale, "norm": proto.norm_scale}
+        return {f"{name}_loss": scales[name] * value for name, value in raw.items()}
 
 
 def gaussian_mse(loss: jax.Array, size: int) -> jax.Array:

@@ -1,0 +1,242 @@
+"""DreamerPro and VSGPro (the ``prototypes`` models) inside the Dreamer agent: their presets
+against the authors' ``configs.yaml`` (fdeng18/dreamer-pro, ``DreamerPro/dreamerv2/
+configs.yaml``: ``defaults`` then ``dmc``), and the update of ``DreamerPro/dreamerv2/agent.py``
+(``WorldModel.train``: prototypes normalised before the loss and frozen for the first updates,
+the EMA targets copied at the first update and mixed after it, two augmented views). The
+equations of the prototype losses are tested in ``test_prototypes.py``.
+"""
+
+import functools
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from vsgjax.agents.dreamer import prototypes
+from vsgjax.agents.dreamer.agent import DreamerAgent
+from vsgjax.agents.dreamer.open_loop import open_loop_errors, open_loop_video
+from vsgjax.config import ConfigError, make_config, to_dict
+
+BATCH, LENGTH, UPDATES, ACTIONS = 2, 4, 3, 2
+TASK = "dmc_walker_run"
+
+
+@pytest.mark.parametrize("model", ["dreamerpro", "vsgpro"])
+def test_presets_are_the_authors_dmc_settings(model):
+    """``defaults`` + ``dmc`` of the authors' configs.yaml (rssm, kl, dataset, optimisers,
+    action repeat, prototypes; sinkhorn_eps 0.0125 in the dmc block)."""
+    config = make_config(TASK, model, "paper")
+    m, wm, ac, train, proto = config.model, config.wm, config.ac, config.train, config.proto
+    assert (m.deter, m.hidden, m.stoch, m.classes) == (200, 200, 32, 0)
+    assert (wm.kl_free, wm.kl_balance, wm.kl_scale, wm.discount_head) == (1.0, 0.8, 1.0, False)
+    assert (wm.cnn_depth, wm.reward_layers, wm.mlp_units, wm.lr) == (48, 4, 400, 3e-4)
+    assert (wm.reward_scale, wm.weight_decay, ac.weight_decay) == (1.0, 1e-6, 1e-6)
+    # actor_grad "auto" is the dynamics gradient for continuous actions (the dmc block's)
+    assert (ac.actor_lr, ac.critic_lr, ac.entropy, ac.actor_grad) == (8e-5, 8e-5, 1e-4, "auto")
+    assert (ac.actor_layers, ac.critic_layers, ac.horizon) == (4, 4, 15)
+    assert (train.batch, train.length, train.train_every) == (50, 51, 5)
+    assert (train.prefill, train.pretrain, config.env.action_repeat) == (5000, 100, 2)
+    assert (proto.prototypes, proto.dim, proto.temperature) == (2500, 32, 0.1)
+    assert (proto.sinkhorn_eps, proto.sinkhorn_iters, proto.warm_up) == (0.0125, 3, 1)
+    assert (proto.freeze_updates, proto.ema_fraction, proto.shift) == (10_000, 0.05, 3.0)
+    # the release's GRU has LayerNorm; VSG's gated cell (VSGPro's) has none
+    assert m.cell_norm is (model == "dreamerpro")
+    assert make_config("bbs_basic", model, "paper").proto.sinkhorn_eps == 0.05
+
+
+@pytest.mark.parametrize("model", ["dreamerpro", "vsgpro"])
+def test_a_vector_task_is_refused_naming_it(model):
+    with pytest.raises(ConfigError, match="'mjx_walker_walk'.*image observations"):
+        make_config("mjx_walker_walk", model, "cpu")
+
+
+def test_prototype_keys_are_refused_by_reconstruction_models():
+    with pytest.raises(ConfigError, match="'proto.dim' is not read by model 'dreamerv2'"):
+        make_config(TASK, "dreamerv2", "debug", ["proto.dim=8"])
+
+
+def test_warm_up_must_leave_a_step():
+    with pytest.raises(ConfigError, match="proto.warm_up.*train.length=4"):
+        make_config(TASK, "dreamerpro", "debug", ["proto.warm_up=4", "train.length=4"])
+
+
+def make_batch(seed: int = 0) -> dict:
+    rng = np.random.default_rng(seed)
+    is_first = np.zeros((BATCH, LENGTH), bool)
+    is_first[:, 0] = True
+    return {"image": rng.integers(0, 256, (BATCH, LENGTH, 64, 64, 3), dtype=np.uint8),
+            "action": rng.uniform(-1, 1, (BATCH, LENGTH, ACTIONS)).astype(np.float32),
+            "reward": rng.normal(size=(BATCH, LENGTH)).astype(np.float32),
+            "is_first": is_first, "is_terminal": np.zeros((BATCH, LENGTH), bool)}
+
+
+@functools.cache
+def _updates(model: str):
+    """(agent, batch, [state_0 .. state_UPDATES], [metrics_1 ..]): prototypes frozen for the
+    first update only."""
+    config = make_config(TASK, model, "debug", ["proto.prototypes=16", "proto.freeze_updates=1",
+                                                f"train.length={LENGTH}"])
+    agent = DreamerAgent(config, (64, 64, 3), ACTIONS, False)
+    batch = make_batch()
+    states, metrics = [agent.init(jax.random.PRNGKey(0))], []
+    for update in range(UPDATES):
+        state, step_metrics = agent.train_step(states[-1], batch, jax.random.PRNGKey(7 + update))
+        states.append(state)
+        metrics.append(jax.device_get(step_metrics))
+    return agent, batch, states, metrics
+
+
+@pytest.fixture(scope="module", params=["dreamerpro", "vsgpro"])
+def updates(request):
+    return _updates(request.param)
+
+
+def test_parameters_have_prototypes_and_targets_but_no_decoder(updates):
+    agent, _, states, _ = updates
+    wm = states[0].params["wm"]
+    assert "decoder" not in wm and "mlp_decoder" not in wm
+    assert wm["proto"]["prototypes"].shape == (16, 32)
+    assert set(states[0].params["wm_targets"]) == {"encoder", "obs_proj"}
+
+
+def test_targets_copy_the_online_networks_at_the_first_update_then_mix(updates):
+    """agent.py ``WorldModel.ema_update``: mix 1.0 at update 0, ``ema_update_fraction`` (0.05)
+    after; after the optimizer step."""
+    _, _, states, _ = updates
+    online = lambda state: {"encoder": state.params["wm"]["encoder"],
+                            "obs_proj": state.params["wm"]["proto"]["obs_proj"]}
+    before = states[0].params["wm_targets"]
+    pairs = lambda x, y: zip(jax.tree.leaves(x), jax.tree.leaves(y), strict=True)
+    assert any(not np.allclose(a, b) for a, b in pairs(before, online(states[0])))
+    for a, b in pairs(states[1].params["wm_targets"], online(states[1])):
+        np.testing.assert_array_equal(a, b)
+    expected = jax.tree.map(lambda o, t: 0.05 * o + 0.95 * t, online(states[2]),
+                            states[1].params["wm_targets"])
+    for a, b in pairs(states[2].params["wm_targets"], expected):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+
+
+def test_prototypes_are_normalised_and_frozen_for_the_first_updates(updates):
+    """nets.py ``RSSM.proto_loss`` assigns the L2-normalised prototypes; agent.py
+    ``WorldModel.train`` zeroes their gradient while updates < freeze_prototypes_iters (here
+    1). What remains of update 1 is the release's weight decay, (1 - 1e-6)."""
+    _, _, states, _ = updates
+    proto = lambda state: np.asarray(state.params["wm"]["proto"]["prototypes"])
+    normalised = np.asarray(prototypes.l2_normalize(proto(states[0])))
+    assert not np.allclose(proto(states[0]), normalised)
+    np.testing.assert_allclose(proto(states[1]), (1 - 1e-6) * normalised, rtol=1e-6)
+    step = np.abs(proto(states[2]) - np.asarray(prototypes.l2_normalize(proto(states[1]))))
+    assert step.max() > 1e-5  # learning from update 2 on
+
+
+def test_the_loss_has_the_prototype_terms_and_no_reconstruction(updates):
+    _, _, _, metrics = updates
+    for m in metrics:
+        for name in ("swav_loss", "temp_loss", "norm_loss", "reward_loss", "kl_loss"):
+            assert np.isfinite(m[f"wm/{name}"]), name
+        assert "wm/image_loss" not in m and "wm/image_mse" not in m
+        total = sum(m[f"wm/{k}"] for k in ("swav_loss", "temp_loss", "norm_loss",
+                                           "reward_loss", "kl_loss", "gate_loss")
+                    if f"wm/{k}" in m)
+        np.testing.assert_allclose(m["wm/loss"], total, rtol=1e-5)
+
+
+def test_the_world_model_trains_on_two_augmented_views(updates):
+    agent, batch, states, _ = updates
+    wm = agent.world_model
+    params, views = wm.training_views(states[0].params["wm"], batch, jax.random.PRNGKey(1))
+    assert views["image"].shape == (2 * BATCH, LENGTH, 64, 64, 3)
+    np.testing.assert_array_equal(views["reward"], np.concatenate([batch["reward"]] * 2))
+    assert not np.allclose(views["image"][:BATCH], views["image"][BATCH:])
+    norms = np.linalg.norm(params["proto"]["prototypes"], axis=-1)
+    np.testing.assert_allclose(norms, 1.0, rtol=1e-6)
+
+
+def test_the_loss_without_targets_is_a_clear_error(updates):
+    agent, batch, states, _ = updates
+    with pytest.raises(ValueError, match="EMA target networks"):
+        agent.world_model.loss(states[0].params["wm"], batch, jax.random.PRNGKey(0))
+
+
+def test_the_open_loop_test_predicts_rewards_only(updates):
+    """No decoder: ``obs_mse`` is NaN (null in open_loop.jsonl), ``reward_mse`` is measured,
+    and there is no open-loop video; decoding states is a clear error."""
+    agent, batch, states, _ = updates
+    wm_params = states[-1].params["wm"]
+    errors = open_loop_errors(agent.config, wm_params, batch, jax.random.PRNGKey(0), 2, 2)
+    assert np.isnan(errors["obs_mse"]).all() and np.isfinite(errors["reward_mse"]).all()
+    episode = {k: v[0] for k, v in batch.items()}
+    assert open_loop_video(agent.config, wm_params, episode, jax.random.PRNGKey(0)) is None
+    feat = jnp.zeros((agent.world_model.dynamics.feat_dim,))
+    with pytest.raises(ValueError, match="has no decoder"):
+        agent.world_model.decode(wm_params, feat)
+
+
+def test_acting_needs_no_targets(updates):
+    agent, batch, states, _ = updates
+    obs = {"image": batch["image"][:, 0], "is_first": np.ones(BATCH, bool)}
+    params = {k: v for k, v in agent.acting_params(states[-1]).items() if k != "wm_targets"}
+    _, action = agent.policy_step(params, agent.initial_carry(BATCH), obs, jax.random.PRNGKey(0))
+    assert action.shape == (BATCH, ACTIONS) and np.isfinite(action).all()
+
+
+def test_gate_statistics_work_on_vsgpro():
+    agent, batch, states, _ = _updates("vsgpro")
+    summary = agent.gate_summary(states[-1], batch)
+    assert 0.0 < summary["gates/open"] < 1.0 and np.isfinite(summary["gates/kl"])
+
+
+# --- the presets table of docs/dreamerpro.md ---------------------------------------------------
+
+PAGE = Path(__file__).resolve().parents[3] / "docs" / "dreamerpro.md"
+TABLE_HEADER = "| key | dreamerpro | vsgpro | source (configs.yaml) |"
+
+
+def _cell(text: str):
+    if text in ("True", "False"):
+        return text == "True"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
+def page_table() -> dict:
+    """{key: {model: value}} from the page's presets table."""
+    lines = PAGE.read_text().splitlines()
+    table = {}
+    for line in lines[lines.index(TABLE_HEADER) + 2:]:
+        if not line.startswith("|"):
+            break
+        key, pro, vsgpro, _source = [cell.strip() for cell in line.strip("|").split("|")]
+        table[key.strip("`")] = {"dreamerpro": _cell(pro), "vsgpro": _cell(vsgpro)}
+    return table
+
+
+def _get(config, key: str):
+    section, name = key.split(".")
+    return getattr(getattr(config, section), name)
+
+
+def test_the_pages_presets_table_matches_make_config():
+    table = page_table()
+    wrong = [f"{key} {model}: page {want!r}, make_config {_get(config, key)!r}"
+             for key, models in table.items() for model, want in models.items()
+             for config in [make_config(TASK, model, "paper")]
+             if _get(config, key) != want or type(_get(config, key)) is not type(want)]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_pages_table_names_every_key_that_differs_from_dreamerv2():
+    base = to_dict(make_config(TASK, "dreamerv2", "paper"))
+    named = set(page_table())
+    for model in ("dreamerpro", "vsgpro"):
+        data = to_dict(make_config(TASK, model, "paper"))
+        differing = {f"{section}.{key}" for section, values in data.items()
+                     if isinstance(values, dict) for key, value in values.items()
+                     if section == "proto" or base[section].get(key) != value}
+        assert differing - {"model.name"} <= named, sorted(differing - named)
