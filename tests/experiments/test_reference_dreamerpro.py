@@ -129,3 +129,24 @@ def test_two_final_returns_in_provenance():
 
     assert final_mean("dmc_walker_run", "DreamerPro") == pytest.approx(783.6, abs=0.05)
     assert final_mean("dmc_cheetah_run", "DreamerPro-natural") == pytest.approx(349.1, abs=0.05)
+
+
+def test_the_natural_dmc_experiment_resolves_and_meets_the_authors_curves():
+    """experiments/paper/natural_dmc.toml: 6 tasks x 4 models x 3 seeds at 500k env steps,
+    every run's config resolves, and DreamerPro's natural-background curve shares its label
+    with our DreamerPro runs (so the curves figure draws the two side by side)."""
+    from experiments.spec import load_experiment
+    from vsgjax.config import make_config
+
+    experiment = load_experiment("natural_dmc")
+    assert len(experiment.runs) == 6 * 4 * 3
+    assert {run.steps for run in experiment.runs} == {500_000}
+    for run in experiment.runs:
+        config = make_config(run.task, run.model, run.size, run.config_overrides)
+        assert config.env.background == "video"
+        assert config.wm.reward_scale == (1000.0 if run.model in ("dreamerpro", "vsgpro")
+                                          else 2.0)
+    ours = {(run.task, run.method) for run in experiment.runs}
+    theirs = {(r["task"], r["method"]) for r in RECORDS}
+    assert {method for _, method in ours & theirs} == {"DreamerPro-natural"}
+    assert {task for task, _ in ours & theirs} == NATURAL_TASKS
