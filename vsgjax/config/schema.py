@@ -17,6 +17,8 @@ from vsgjax.registry.tasks import DEFAULT_TASK, family_of
 SIZES = ("paper", "small", "cpu", "debug")
 ALIGNMENTS = ("release", "next_state")  # ac.alignment: see vsgjax/agents/dreamer/behaviour.py
 ACTOR_GRADS = ("auto", "dynamics", "reinforce", "both")
+# ac.actor_dist: see vsgjax/agents/dreamer/behaviour.py (continuous actions)
+ACTOR_DISTS = ("trunc_normal", "tanh_normal")
 EPS_PLACEMENTS = ("release", "optax")  # optim.eps_placement: see vsgjax/agents/dreamer/optim.py
 WEIGHT_DECAYS = ("release", "adamw")  # optim.weight_decay: see vsgjax/agents/dreamer/optim.py
 PRECISIONS = ("float32", "bfloat16")  # model.precision: the dtype of matmuls and convolutions
@@ -26,7 +28,7 @@ LOOPS = ("auto", "host", "device")  # train.loop: see vsgjax/loop/device_program
 # env.background: see vsgjax/envs/backgrounds.py
 BACKGROUNDS = ("none", "video", "dots", "noise", "color")
 # String keys whose values are names from a fixed list (checked when a config is built).
-CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS,
+CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS, "ac.actor_dist": ACTOR_DISTS,
            "optim.eps_placement": EPS_PLACEMENTS, "optim.weight_decay": WEIGHT_DECAYS,
            "model.precision": PRECISIONS, "train.loop": LOOPS, "wm.encoder": ENCODERS,
            "env.background": BACKGROUNDS}
@@ -100,6 +102,8 @@ class BehaviourConfig:
     actor_grad: str = "auto"  # "dynamics", "reinforce", "both" or "auto" (by action space)
     actor_grad_mix: float = 0.0  # weight of the dynamics gradient when actor_grad == "both"
     actor_min_std: float = 0.1
+    # continuous actions: "trunc_normal" (the VSG release) or "tanh_normal" (DreamerPro's)
+    actor_dist: str = "trunc_normal"
     entropy: float = 2e-3
     slow_critic_every: int = 100
     eps: float = 1e-5

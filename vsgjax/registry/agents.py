@@ -67,7 +67,7 @@ _DREAMER_SECTIONS = ("model", "wm", "ac", "optim")
 _PRO_SECTIONS = (*_DREAMER_SECTIONS, "proto")
 _PRO_DMC = {"model.deter": 200, "model.hidden": 200, "wm.cnn_depth": 48, "wm.reward_layers": 4,
             "wm.weight_decay": 1e-6, "wm.reward_scale": 1.0, "ac.critic_layers": 4,
-            "ac.weight_decay": 1e-6, "train.prefill": 5000,
+            "ac.weight_decay": 1e-6, "ac.actor_dist": "tanh_normal", "train.prefill": 5000,
             "train.length": 51, "train.eval_episodes": 10, "proto.sinkhorn_eps": 0.0125}
 _PRO_OPTIONS = (("dynamics", "RSSM"), ("representation", "prototypes"))
 

@@ -240,3 +240,72 @@ def test_the_pages_table_names_every_key_that_differs_from_dreamerv2():
                      if isinstance(values, dict) for key, value in values.items()
                      if section == "proto" or base[section].get(key) != value}
         assert differing - {"model.name"} <= named, sorted(differing - named)
+
+
+# --- the tanh-normal actor (DreamerPro's `actor.dist: tanh_normal`) ------------------------------
+
+def _tanh_normal(seed: int = 0, shape=(5, 3)):
+    from vsgjax.agents.dreamer.behaviour import TanhNormalActions
+
+    rng = np.random.default_rng(seed)
+    mean = jnp.asarray(rng.normal(size=shape), jnp.float32)
+    std = jnp.asarray(rng.uniform(0.2, 1.0, shape), jnp.float32)
+    return TanhNormalActions(mean, std, jax.random.PRNGKey(seed))
+
+
+def test_tanh_normal_log_prob_is_tfps_tanh_transformed_normal():
+    """dists.py ``TanhBijector`` + nets.py ``DistLayer`` (tanh_normal): the density of
+    tanh(u), u ~ N(mean, std), summed over action dimensions."""
+    from tensorflow_probability.substrates import jax as tfp
+
+    dist = _tanh_normal()
+    action = dist.sample(jax.random.PRNGKey(3))
+    reference = tfp.distributions.TransformedDistribution(
+        tfp.distributions.Normal(dist.mean, dist.std), tfp.bijectors.Tanh())
+    np.testing.assert_allclose(dist.log_prob(action), reference.log_prob(action).sum(-1),
+                               rtol=1e-4, atol=1e-4)
+    assert np.all(np.abs(action) < 1.0)
+
+
+def test_tanh_normal_entropy_and_mode_are_the_releases_sample_estimates():
+    """dists.py ``SampleDist``: entropy = -mean log p over 100 samples; mode = the most likely
+    of 100 samples (drawn with the distribution's key)."""
+    dist = _tanh_normal()
+    u = dist.mean + dist.std * jax.random.normal(dist.key, (100, *dist.mean.shape))
+    log_p = np.stack([np.asarray(dist.log_prob(np.tanh(np.asarray(x)))) for x in u])
+    np.testing.assert_allclose(dist.entropy(), -log_p.mean(0), rtol=1e-3, atol=1e-3)
+    best = log_p.argmax(0)
+    np.testing.assert_allclose(dist.mode(), np.tanh(np.asarray(u))[best, np.arange(5)],
+                               rtol=1e-6)
+    assert float(jnp.abs(dist.mode() - jnp.tanh(dist.mean)).max()) < 1.0
+
+
+def test_tanh_normal_entropy_has_a_gradient_through_its_samples():
+    from vsgjax.agents.dreamer.behaviour import TanhNormalActions
+
+    key = jax.random.PRNGKey(0)
+    grad = jax.grad(lambda s: TanhNormalActions(jnp.zeros(2), s, key).entropy().sum())
+    # near 0 tanh is almost linear: a wider pre-tanh Normal has more entropy (at std 0.3)
+    assert np.all(np.asarray(grad(jnp.full(2, 0.3))) > 0)
+
+
+def test_the_prototype_models_act_with_the_tanh_normal_and_the_others_do_not():
+    """DreamerPro's ``defaults``: ``actor: {dist: tanh_normal, min_std: 0.1}``; mean
+    5·tanh(m/5), std softplus(s) + 0.1 from the actor's two outputs."""
+    from vsgjax.agents.dreamer.behaviour import Behaviour, TanhNormalActions, TruncNormalActions
+
+    for model, kind in (("dreamerpro", TanhNormalActions), ("vsgpro", TanhNormalActions),
+                        ("dreamerv2", TruncNormalActions)):
+        config = make_config(TASK, model, "debug")
+        behaviour = Behaviour.from_config(config, ACTIONS, False)
+        params = behaviour.init(jax.random.PRNGKey(0), 8)["actor"]
+        feat = jnp.ones(8)
+        policy = behaviour.policy(params, feat, jax.random.PRNGKey(1))
+        assert isinstance(policy, kind), model
+    out = behaviour.actor_net.apply({"params": params}, feat)
+    config = make_config(TASK, "dreamerpro", "debug")
+    policy = Behaviour.from_config(config, ACTIONS, False).policy(params, feat,
+                                                                  jax.random.PRNGKey(1))
+    np.testing.assert_allclose(policy.mean, 5 * np.tanh(np.asarray(out[:ACTIONS]) / 5), rtol=1e-6)
+    np.testing.assert_allclose(policy.std, np.logaddexp(0, np.asarray(out[ACTIONS:])) + 0.1,
+                               rtol=1e-5)

@@ -23,6 +23,8 @@ from vsgjax.config import ACTOR_GRADS, ALIGNMENTS, BehaviourConfig, Config
 sg = jax.lax.stop_gradient
 
 TRUNC_CLIP = 1e-6  # samples are clipped to [-1 + clip, 1 - clip] so log_prob stays finite
+TANH_CLIP = 0.99999997  # |a| is clipped to this before atanh (the release's TanhBijector)
+TANH_SAMPLES = 100  # samples of the tanh-normal's entropy and mode (the release's SampleDist)
 TAIL = 1e-7  # inverse-CDF levels are kept in [TAIL, 1 - TAIL] so the sample stays finite
 
 
@@ -90,6 +92,47 @@ def _normal_cdf(x: jax.Array) -> jax.Array:
 
 def _normal_pdf(x: jax.Array) -> jax.Array:
     return jnp.exp(-0.5 * x * x) / jnp.sqrt(2.0 * jnp.pi)
+
+
+class TanhNormalActions(NamedTuple):
+    """Continuous actions in (-1, 1)^A: ``a = tanh(u)``, ``u ~ N(μ, σ)`` per dimension
+    (DreamerV2's ``tanh_normal``, DreamerPro's actor).
+
+    ``μ = 5·tanh(m/5)``, ``σ = softplus(s) + min_std`` from the actor's raw outputs ``(m, s)``;
+    ``log p(a) = Σ [log N(u | μ, σ) − log(1 − tanh²(u))]`` with ``u = atanh(a)`` (|a| clipped
+    at 0.99999997) and ``log(1 − tanh²(u)) = 2·(log 2 − u − softplus(−2u))``. As the release's
+    ``SampleDist``, the entropy is ``−mean log p`` over 100 reparameterised samples and the
+    mode the most likely of 100 samples, both drawn with ``key``.
+    """
+
+    mean: jax.Array
+    std: jax.Array
+    key: jax.Array
+
+    def _pre_tanh(self, key: jax.Array, samples: tuple[int, ...] = ()) -> jax.Array:
+        noise = jax.random.normal(key, samples + self.mean.shape)
+        return self.mean + self.std * noise
+
+    def _log_prob_pre_tanh(self, u: jax.Array) -> jax.Array:
+        log_normal = (-0.5 * jnp.square((u - self.mean) / self.std) - jnp.log(self.std)
+                      - 0.5 * jnp.log(2.0 * jnp.pi))
+        log_det = 2.0 * (jnp.log(2.0) - u - jax.nn.softplus(-2.0 * u))
+        return (log_normal - log_det).sum(-1)
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        return jnp.tanh(self._pre_tanh(key))
+
+    def log_prob(self, action: jax.Array) -> jax.Array:
+        return self._log_prob_pre_tanh(jnp.arctanh(jnp.clip(action, -TANH_CLIP, TANH_CLIP)))
+
+    def entropy(self) -> jax.Array:
+        u = self._pre_tanh(self.key, (TANH_SAMPLES,))
+        return -jax.vmap(self._log_prob_pre_tanh)(u).mean(0)
+
+    def mode(self) -> jax.Array:
+        u = self._pre_tanh(self.key, (TANH_SAMPLES,))
+        best = jnp.argmax(jax.vmap(self._log_prob_pre_tanh)(u), axis=0)
+        return jnp.tanh(jnp.take_along_axis(u, best[None, ..., None], axis=0)[0])
 
 
 class OneHotActions(NamedTuple):
@@ -208,19 +251,27 @@ class Behaviour:
         return {"actor": self.actor_net.init(actor_key, feat)["params"], "critic": critic,
                 "slow_critic": jax.tree.map(jnp.copy, critic)}
 
-    def policy(self, actor_params, feat: jax.Array) -> TruncNormalActions | OneHotActions:
-        """The action distribution π(·|feat)."""
+    def policy(self, actor_params, feat: jax.Array, key: jax.Array | None = None
+               ) -> TruncNormalActions | TanhNormalActions | OneHotActions:
+        """The action distribution π(·|feat); ``key`` draws the samples of a tanh-normal's
+        entropy and mode (``ac.actor_dist=tanh_normal``; unused otherwise)."""
         out = self.actor_net.apply({"params": actor_params}, feat)
         if self.discrete:
             return OneHotActions(out)
         mean, std = jnp.split(out, 2, axis=-1)
+        if self.cfg.actor_dist == "tanh_normal":
+            if key is None:
+                raise ValueError("a tanh-normal actor needs a key for its sampled entropy "
+                                 "and mode")
+            return TanhNormalActions(5.0 * jnp.tanh(mean / 5.0),
+                                     jax.nn.softplus(std) + self.cfg.actor_min_std, key)
         return TruncNormalActions(jnp.tanh(mean), 2.0 * jax.nn.sigmoid(std / 2.0)
                                   + self.cfg.actor_min_std)
 
     def act(self, actor_params, feat: jax.Array, key: jax.Array, mode: str = "train"
             ) -> jax.Array:
         """An action of π(·|feat) as float32: a sample (``"train"``) or the mode (``"eval"``)."""
-        policy = self.policy(actor_params, feat)
+        policy = self.policy(actor_params, feat, key)
         action = policy.sample(key) if mode == "train" else policy.mode()
         return action.astype(jnp.float32)
 
@@ -335,14 +386,14 @@ def imagine(behaviour: Behaviour, actor_params, slow_critic_params, world: World
 
 
 def actor_objective(behaviour: Behaviour, actor_params, baseline_params,
-                    imagined: Imagined) -> tuple:
+                    imagined: Imagined, key: jax.Array) -> tuple:
     """Per-step actor objective for the N targets (to be maximised) and the policy entropy.
 
     ``baseline_params``: the critic whose value is REINFORCE's baseline (release: the online
-    critic; next_state: the slow critic).
+    critic; next_state: the slow critic). ``key``: the samples of a tanh-normal's entropy.
     """
     feat = sg(imagined.feat[:-1])
-    policy = behaviour.policy(actor_params, feat)
+    policy = behaviour.policy(actor_params, feat, key)
     mix = behaviour.dynamics_weight
     objective = jnp.zeros_like(imagined.returns)
     if mix > 0.0:
@@ -366,7 +417,8 @@ def actor_loss(actor_params, behaviour: Behaviour, critic_params, slow_critic_pa
 
     def one_start(start, cont, key):
         imagined = imagine(behaviour, rollout_params, slow_critic_params, world, start, cont, key)
-        objective, entropy = actor_objective(behaviour, actor_params, baseline_params, imagined)
+        objective, entropy = actor_objective(behaviour, actor_params, baseline_params, imagined,
+                                             jax.random.fold_in(key, 1))
         return -jnp.mean(imagined.weight * objective), (imagined, entropy)
 
     losses, (imagined, entropy) = jax.vmap(one_start)(starts, start_continue, keys)
