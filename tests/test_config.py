@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.doc_tables import cell_value, config_value, table_rows
 from vsgjax.config import (
     MODELS,
     SIZES,
@@ -109,17 +110,12 @@ ATARI_PAPER = {
 }
 
 
-def _get(config, key):
-    section, name = key.split(".")
-    return getattr(getattr(config, section), name)
-
-
 @pytest.mark.parametrize("task, table", [("bbs_basic", BBS_PAPER), ("dmc_walker_walk", DMC_PAPER),
                                          ("atari_pong", ATARI_PAPER)])
 def test_paper_presets_match_the_spec_table(task, table):
     config = make_config(task, "vsg", "paper")
-    wrong = {key: (_get(config, key), want) for key, want in table.items()
-             if _get(config, key) != want}
+    wrong = {key: (config_value(config, key), want) for key, want in table.items()
+             if config_value(config, key) != want}
     assert not wrong
 
 
@@ -189,50 +185,33 @@ IDENTITY_KEYS = {"model.name", "env.task", "train.seed"}  # the run's name, not 
 DREAMER_MODELS = tuple(m for m in dreamer_models() if m not in prototype_models())
 
 
-def _cell_value(text: str):
-    if text in ("True", "False"):
-        return text == "True"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def _parse_cell(cell: str) -> dict:
     """``"a; m1 b; m2 c"`` -> {model: value} for every model of the Dreamer family."""
     default, *exceptions = [part.strip() for part in cell.split(";")]
-    values = dict.fromkeys(DREAMER_MODELS, _cell_value(default))
+    values = dict.fromkeys(DREAMER_MODELS, cell_value(default))
     for exception in exceptions:
         model, value = exception.split(" ", 1)
         assert model in DREAMER_MODELS, f"unknown model {model!r} in cell {cell!r}"
-        values[model] = _cell_value(value)
+        values[model] = cell_value(value)
     return values
 
 
 def page_presets() -> dict:
     """{key: {domain: {model: value}}} from the presets page's `paper` table."""
-    lines = PRESETS_PAGE.read_text().splitlines()
-    start = lines.index(TABLE_HEADER) + 2
-    table = {}
-    for line in lines[start:]:
-        if not line.startswith("|"):
-            break
-        key, *cells, _source = [cell.strip() for cell in line.strip("|").split("|")]
-        table[key.strip("`")] = {domain: _parse_cell(cell)
-                                 for domain, cell in zip(DOMAIN_TASKS, cells, strict=True)}
-    return table
+    return {key.strip("`"): {domain: _parse_cell(cell)
+                             for domain, cell in zip(DOMAIN_TASKS, cells, strict=True)}
+            for key, *cells, _source in table_rows(PRESETS_PAGE.read_text(), TABLE_HEADER)}
 
 
 def test_presets_page_table_matches_make_config_cell_by_cell():
     table = page_presets()
     configs = {(domain, model): make_config(task, model, "paper")
                for domain, task in DOMAIN_TASKS.items() for model in DREAMER_MODELS}
-    wrong = [f"{key} {domain} {model}: page {want!r}, make_config {_get(config, key)!r}"
+    wrong = [f"{key} {domain} {model}: page {want!r}, make_config {got!r}"
              for key, domains in table.items() for domain, models in domains.items()
-             for model, want in models.items() for config in [configs[domain, model]]
-             if _get(config, key) != want or type(_get(config, key)) is not type(want)]
+             for model, want in models.items()
+             for got in [config_value(configs[domain, model], key)]
+             if got != want or type(got) is not type(want)]
     assert not wrong, "\n".join(wrong)
 
 
@@ -266,14 +245,8 @@ def test_presets_page_cpu_table_names_every_key_the_cpu_size_sets():
     from vsgjax.agents.dreamer.presets import SIZE
     from vsgjax.registry.agents import AGENTS
 
-    lines = PRESETS_PAGE.read_text().splitlines()
-    start = lines.index(CPU_HEADING)
-    header = next(i for i in range(start, len(lines)) if lines[i].startswith("| key |"))
-    named = set()
-    for line in lines[header + 2:]:
-        if not line.startswith("|"):
-            break
-        named |= set(re.findall(r"`([a-z]+\.[a-z_]+)`", line.split("|")[1]))
+    named = {name for key, *_ in table_rows(PRESETS_PAGE.read_text(), "| key |", CPU_HEADING)
+             for name in re.findall(r"`([a-z]+\.[a-z_]+)`", key)}
     sets = set(SIZE["cpu"]) | {key for model in DREAMER_MODELS
                                for key in AGENTS[model].by_size.get("cpu", {})}
     assert named == sets

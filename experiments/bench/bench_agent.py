@@ -13,7 +13,6 @@ which is what the work costs when the machine is shared.
 from __future__ import annotations
 
 import os
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from experiments.bench import timing
 from vsgjax.agents import make_agent
 from vsgjax.agents.dreamer import api
 from vsgjax.config import make_config
@@ -44,13 +44,6 @@ def replay_batch(config, action_dim: int, seed: int = 0) -> dict:
     }
 
 
-def timed(fn, *args) -> tuple[float, float]:
-    """(wall seconds, process CPU seconds) of one call, outputs ready."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    jax.block_until_ready(fn(*args))
-    return time.perf_counter() - wall, time.process_time() - cpu
-
-
 def compile_seconds(jitted, *args, **kwargs) -> float:
     started = time.perf_counter()
     jitted.lower(*args, **kwargs).compile()
@@ -58,8 +51,8 @@ def compile_seconds(jitted, *args, **kwargs) -> float:
 
 
 def median_times(fn, *args) -> tuple[float, float]:
-    runs = [timed(fn, *args) for _ in range(REPEATS)]
-    return statistics.median(w for w, _ in runs), statistics.median(c for _, c in runs)
+    """Median (wall, process CPU) seconds of ``REPEATS`` calls of ``fn(*args)``, outputs ready."""
+    return timing.median_times(lambda: fn(*args), REPEATS)
 
 
 def bench_model(model: str) -> dict:

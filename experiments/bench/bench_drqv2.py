@@ -11,13 +11,13 @@ stepping and rendering the envs, evaluation and logging come on top.
 
 from __future__ import annotations
 
-import statistics
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
+from experiments.bench.timing import median_times
 from vsgjax.agents import make_agent
 from vsgjax.config import make_config
 from vsgjax.envs import EnvSpec
@@ -45,16 +45,6 @@ def window_batch(config, agent, spec: dict, action_dim: int, seed: int = 0) -> d
             "is_first": np.zeros(shape, bool), "is_terminal": np.zeros(shape, bool)}
 
 
-def median_seconds(fn) -> tuple[float, float]:
-    """Median (wall, CPU) seconds of ``fn()`` over ``REPEATS`` calls, outputs ready."""
-    runs = []
-    for _ in range(REPEATS):
-        wall, cpu = time.perf_counter(), time.process_time()
-        jax.block_until_ready(fn())
-        runs.append((time.perf_counter() - wall, time.process_time() - cpu))
-    return statistics.median(w for w, _ in runs), statistics.median(c for _, c in runs)
-
-
 def bench_case(label: str, task: str, size: str, spec: dict, action_dim: int) -> dict:
     config = make_config(task, "drqv2", size)
     agent = make_agent(config, EnvSpec(spec, action_dim, False))
@@ -63,12 +53,12 @@ def bench_case(label: str, task: str, size: str, spec: dict, action_dim: int) ->
     started = time.perf_counter()
     jax.block_until_ready(agent.train_step(state, batch, key))
     compile_s = time.perf_counter() - started
-    update = median_seconds(lambda: agent.train_step(state, batch, key))
+    update = median_times(lambda: agent.train_step(state, batch, key), REPEATS)
     obs = {k: v[:1, -1] for k, v in batch.items() if k in spec}
     obs["is_first"] = np.ones(1, bool)
     params, carry = agent.acting_params(state), agent.initial_carry(1)
     agent.policy_step(params, carry, obs, key)
-    act = median_seconds(lambda: agent.policy_step(params, carry, obs, key))
+    act = median_times(lambda: agent.policy_step(params, carry, obs, key), REPEATS)
     train, repeat = config.train, config.env.action_repeat
     updates = (RUN_FRAMES // repeat - train.prefill // repeat) // train.train_every
     params_count = sum(x.size for x in jax.tree.leaves(state.params))

@@ -28,14 +28,16 @@ What the conversion does (nothing else):
 
 from __future__ import annotations
 
-import argparse
-import hashlib
 import json
 import math
-import subprocess
 import sys
 from itertools import pairwise
 from pathlib import Path
+
+try:
+    from experiments.reference_scores import conversion
+except ModuleNotFoundError:  # run as a script: this file's folder is on sys.path
+    import conversion
 
 SOURCE_REPO = "https://github.com/fdeng18/dreamer-pro"
 SOURCE_COMMIT = "809b41757e1b08322011d5bcfc6e9f577f82c138"
@@ -62,9 +64,8 @@ TASK_PREFIX = {STANDARD: "dmc_", NATURAL: "nat_"}  # the authors' suite prefix p
 DOMAIN_NAMES = {"cup": "ball_in_cup"}  # DreamerPro's domain name -> dm_control's
 KEYS = {"task", "method", "seed", "xs", "ys"}
 
-
-class ConversionError(ValueError):
-    """A source file is missing, changed or not in the expected layout."""
+ConversionError = conversion.ConversionError  # a source missing, changed or in another layout
+dumps = conversion.dumps  # the canonical form of the output file
 
 
 def project_task(name: str) -> str:
@@ -81,31 +82,16 @@ def read_sources(path: Path, rev: str = "HEAD") -> dict[str, bytes]:
     """``{file: bytes}`` of both runs.json files of a work tree or a git directory."""
     if all((path / name).is_file() for name in SHA256):
         return {name: (path / name).read_bytes() for name in SHA256}
-
-    def git(*args: str) -> bytes:
-        return subprocess.run(["git", f"--git-dir={path}", *args], check=True,
-                              capture_output=True).stdout
-
     sources = {}
     for name in SHA256:
-        try:
-            sources[name] = git("show", f"{rev}:{name}")
-        except subprocess.CalledProcessError as error:
-            raise ConversionError(f"{path} has neither {name} nor a git blob {rev}:{name} "
-                                  f"({error.stderr.decode().strip()})") from error
+        with conversion.git_or_missing(path, f"{name} nor a git blob {rev}:{name}"):
+            sources[name] = conversion.git(path, "show", f"{rev}:{name}")
     return sources
 
 
 def check_sources(sources: dict[str, bytes], allow_changed: bool = False) -> list[str]:
     """The differences from the recorded sha256s; raise unless ``allow_changed``."""
-    problems = [f"missing {name}" for name in SHA256 if name not in sources]
-    problems += [f"changed: {name} (sha256 {hashlib.sha256(data).hexdigest()})"
-                 for name, data in sources.items()
-                 if name in SHA256 and hashlib.sha256(data).hexdigest() != SHA256[name]]
-    if problems and not allow_changed:
-        raise ConversionError(f"the sources differ from commit {SOURCE_COMMIT}: "
-                              + "; ".join(problems))
-    return problems
+    return conversion.check_sources(sources, SHA256, SOURCE_COMMIT, allow_changed)
 
 
 def records_of(name: str, data: bytes) -> list[dict]:
@@ -145,29 +131,13 @@ def convert(sources: dict[str, bytes]) -> list[dict]:
     return sorted(records, key=lambda r: (r["task"], order[r["method"]], r["seed"]))
 
 
-def dumps(records: list[dict]) -> str:
-    """Compact JSON, one record a line."""
-    return "[\n" + ",\n".join(json.dumps(r, separators=(",", ":")) for r in records) + "\n]\n"
-
-
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("path", type=Path, nargs="?", default=DEFAULT_SOURCE,
-                        help=f"dreamer-pro checkout (work tree or git directory; default "
-                             f"{DEFAULT_SOURCE})")
-    parser.add_argument("--output", type=Path, default=OUTPUT)
-    parser.add_argument("--rev", default="HEAD", help="git revision (git directories only)")
-    parser.add_argument("--allow-changed", action="store_true",
-                        help="convert files whose sha256 differs from the recorded one")
-    args = parser.parse_args(argv)
-    sources = read_sources(args.path, args.rev)
-    for problem in check_sources(sources, args.allow_changed):
-        print(f"warning: {problem}", file=sys.stderr)
-    records = convert(sources)
-    args.output.write_text(dumps(records))
-    tasks = sorted({r["task"] for r in records})
-    print(f"wrote {args.output}: {len(records)} records, {len(tasks)} tasks")
-    return 0
+    return conversion.main(
+        argv, description=__doc__.split("\n\n")[0], output=OUTPUT,
+        path={"nargs": "?", "default": DEFAULT_SOURCE,
+              "help": f"dreamer-pro checkout (work tree or git directory; default "
+                      f"{DEFAULT_SOURCE})"},
+        read_sources=read_sources, check_sources=check_sources, convert=convert)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 Source: https://github.com/facebookresearch/drqv2, folder ``curves/`` (one CSV per task, columns
 ``,agent,task,seed,frame,episode_reward,hour``), at commit ``SOURCE_COMMIT``; provenance, units
-and checksums in ``README.md`` beside this file.
+and checksums in ``PROVENANCE.md`` beside this file.
 
     python experiments/reference_scores/convert_drqv2.py PATH [--output FILE] [--rev REV]
 
@@ -25,15 +25,16 @@ What the conversion does (nothing else):
 
 from __future__ import annotations
 
-import argparse
 import csv
-import hashlib
 import io
-import json
-import subprocess
 import sys
 from itertools import pairwise
 from pathlib import Path
+
+try:
+    from experiments.reference_scores import conversion
+except ModuleNotFoundError:  # run as a script: this file's folder is on sys.path
+    import conversion
 
 SOURCE_REPO = "https://github.com/facebookresearch/drqv2"
 SOURCE_COMMIT = "c0c650b76c6e5d22a7eb5f2edffd1440fe94f8ef"
@@ -73,9 +74,8 @@ SHA256 = {
     "dmc_walker_walk.csv": "3e95c5a8bfc333dc9097f157709290b37595294dcebc53178f77061fbea71466",
 }
 
-
-class ConversionError(ValueError):
-    """A source file is missing, changed or not in the expected layout."""
+ConversionError = conversion.ConversionError  # a source missing, changed or in another layout
+dumps = conversion.dumps  # the canonical form of the output file
 
 
 def project_task(drq_task: str) -> str:
@@ -89,30 +89,17 @@ def read_sources(path: Path, rev: str = "HEAD") -> dict[str, bytes]:
     curves = path / "curves"
     if curves.is_dir():
         return {p.name: p.read_bytes() for p in sorted(curves.glob("*.csv"))}
-
-    def git(*args: str) -> bytes:
-        return subprocess.run(["git", f"--git-dir={path}", *args], check=True,
-                              capture_output=True).stdout
-
-    try:
-        names = git("ls-tree", "--name-only", rev, "curves/").decode().split()
-    except subprocess.CalledProcessError as error:
-        raise ConversionError(f"{path} has neither curves/ nor a git tree {rev}:curves/ "
-                              f"({error.stderr.decode().strip()})") from error
-    return {Path(n).name: git("show", f"{rev}:{n}") for n in names if n.endswith(".csv")}
+    with conversion.git_or_missing(path, f"curves/ nor a git tree {rev}:curves/"):
+        names = conversion.git(path, "ls-tree", "--name-only", rev, "curves/").decode().split()
+    return {Path(n).name: conversion.git(path, "show", f"{rev}:{n}")
+            for n in names if n.endswith(".csv")}
 
 
 def check_sources(sources: dict[str, bytes], allow_changed: bool = False) -> list[str]:
-    """The differences from the recorded sha256s; raise unless ``allow_changed``."""
-    problems = [f"missing {name}" for name in SHA256 if name not in sources]
-    problems += [f"not recorded: {name}" for name in sources if name not in SHA256]
-    problems += [f"changed: {name} (sha256 {hashlib.sha256(data).hexdigest()})"
-                 for name, data in sources.items()
-                 if name in SHA256 and hashlib.sha256(data).hexdigest() != SHA256[name]]
-    if problems and not allow_changed:
-        raise ConversionError(f"the sources differ from commit {SOURCE_COMMIT}: "
-                              + "; ".join(problems))
-    return problems
+    """The differences from the recorded sha256s (and the CSVs without one); raise unless
+    ``allow_changed``."""
+    return conversion.check_sources(sources, SHA256, SOURCE_COMMIT, allow_changed,
+                                    unrecorded=True)
 
 
 def records_of(name: str, data: bytes) -> list[dict]:
@@ -150,27 +137,11 @@ def convert(sources: dict[str, bytes]) -> list[dict]:
     return sorted(records, key=lambda r: (r["task"], int(r["seed"])))
 
 
-def dumps(records: list[dict]) -> str:
-    """Compact JSON, one record a line."""
-    return "[\n" + ",\n".join(json.dumps(r, separators=(",", ":")) for r in records) + "\n]\n"
-
-
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("path", type=Path, help="drqv2 checkout (work tree or git directory)")
-    parser.add_argument("--output", type=Path, default=OUTPUT)
-    parser.add_argument("--rev", default="HEAD", help="git revision (git directories only)")
-    parser.add_argument("--allow-changed", action="store_true",
-                        help="convert files whose sha256 differs from the recorded one")
-    args = parser.parse_args(argv)
-    sources = read_sources(args.path, args.rev)
-    for problem in check_sources(sources, args.allow_changed):
-        print(f"warning: {problem}", file=sys.stderr)
-    records = convert(sources)
-    args.output.write_text(dumps(records))
-    tasks = sorted({r["task"] for r in records})
-    print(f"wrote {args.output}: {len(records)} records, {len(tasks)} tasks")
-    return 0
+    return conversion.main(
+        argv, description=__doc__.split("\n\n")[0], output=OUTPUT,
+        path={"help": "drqv2 checkout (work tree or git directory)"},
+        read_sources=read_sources, check_sources=check_sources, convert=convert)
 
 
 if __name__ == "__main__":

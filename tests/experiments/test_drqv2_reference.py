@@ -1,6 +1,6 @@
 """The committed DrQ-v2 reference curves (experiments/reference_scores/drqv2_dmc.json, made by
 convert_drqv2.py from facebookresearch/drqv2's curves/ CSVs; provenance in that folder's
-README.md): schema, task names, seeds, steps, and final returns read from the CSVs."""
+PROVENANCE.md): schema, task names, seeds, steps, and final returns read from the CSVs."""
 
 import json
 import statistics

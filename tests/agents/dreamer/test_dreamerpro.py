@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from tests.support.doc_tables import cell_value, config_value, table_rows
 from vsgjax.agents.dreamer import prototypes
 from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.agents.dreamer.open_loop import open_loop_errors, open_loop_video
@@ -194,40 +195,18 @@ PAGE = Path(__file__).resolve().parents[3] / "docs" / "dreamerpro.md"
 TABLE_HEADER = "| key | dreamerpro | vsgpro | source (configs.yaml) |"
 
 
-def _cell(text: str):
-    if text in ("True", "False"):
-        return text == "True"
-    for kind in (int, float):
-        try:
-            return kind(text)
-        except ValueError:
-            pass
-    return text
-
-
 def page_table() -> dict:
     """{key: {model: value}} from the page's presets table."""
-    lines = PAGE.read_text().splitlines()
-    table = {}
-    for line in lines[lines.index(TABLE_HEADER) + 2:]:
-        if not line.startswith("|"):
-            break
-        key, pro, vsgpro, _source = [cell.strip() for cell in line.strip("|").split("|")]
-        table[key.strip("`")] = {"dreamerpro": _cell(pro), "vsgpro": _cell(vsgpro)}
-    return table
-
-
-def _get(config, key: str):
-    section, name = key.split(".")
-    return getattr(getattr(config, section), name)
+    return {key.strip("`"): {"dreamerpro": cell_value(pro), "vsgpro": cell_value(vsgpro)}
+            for key, pro, vsgpro, _source in table_rows(PAGE.read_text(), TABLE_HEADER)}
 
 
 def test_the_pages_presets_table_matches_make_config():
     table = page_table()
-    wrong = [f"{key} {model}: page {want!r}, make_config {_get(config, key)!r}"
+    wrong = [f"{key} {model}: page {want!r}, make_config {got!r}"
              for key, models in table.items() for model, want in models.items()
-             for config in [make_config(TASK, model, "paper")]
-             if _get(config, key) != want or type(_get(config, key)) is not type(want)]
+             for got in [config_value(make_config(TASK, model, "paper"), key)]
+             if got != want or type(got) is not type(want)]
     assert not wrong, "\n".join(wrong)
 
 
