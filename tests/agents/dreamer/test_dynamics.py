@@ -22,7 +22,7 @@ from vsgjax.registry.agents import dreamer_models
 B, T, E, A, H = 3, 6, 10, 2, 4
 STATE_TYPES = {
     "dreamerv1": RSSMState, "dreamerv2": RSSMState, "vsg": GatedRSSMState,
-    "svsg": SVSGState, "ssm": SSMState,
+    "svsg": SVSGState, "ssm": SSMState, "dreamerpro": RSSMState, "vsgpro": GatedRSSMState,
 }
 
 
@@ -106,7 +106,7 @@ def test_observe_shapes(setup):
     assert jax.vmap(jax.vmap(dyn.entropy))(posts).shape == (B, T)
     if dyn.gated:
         gate, prob = jax.vmap(jax.vmap(dyn.gates))(posts)
-        units = cfg.deter if setup.name == "vsg" else cfg.stoch
+        units = cfg.deter if type(posts) is GatedRSSMState else cfg.stoch  # VSG's gate h
         assert gate.shape == prob.shape == (B, T, units)
         assert set(np.unique(np.asarray(gate))) == {0.0, 1.0}
         assert np.all((np.asarray(prob) > 0) & (np.asarray(prob) < 1))
