@@ -5,13 +5,12 @@ Source: https://github.com/fdeng18/dreamer-pro at commit ``SOURCE_COMMIT``, file
 of ``{task, method, seed, xs, ys}``, 6 tasks x 3 methods x 3 seeds, written by the repository's
 ``common/plot.py``); provenance, units and checksums in ``PROVENANCE.md`` beside this file.
 
-    python experiments/reference_scores/convert_dreamerpro.py [PATH] [--output FILE] [--rev REV]
+    python experiments/reference_scores/convert_dreamerpro.py PATH [--output FILE] [--rev REV]
 
 ``PATH`` is a checkout of the repository (a work tree holding ``plots/``) or its git directory
-(a bare clone, read with ``git show REV:plots/...``; ``--rev`` defaults to HEAD); it defaults to
-``DEFAULT_SOURCE``, this machine's mirror. Both files are checked against the sha256 recorded
-here; a changed or missing file stops the conversion (``--allow-changed`` converts it anyway and
-says so).
+(a bare clone, read with ``git show REV:plots/...``; ``--rev`` defaults to HEAD). Both files
+are checked against the sha256 recorded here; a changed or missing file stops the conversion
+(``--allow-changed`` converts it anyway and says so).
 
 What the conversion does (nothing else):
 
@@ -41,7 +40,6 @@ except ModuleNotFoundError:  # run as a script: this file's folder is on sys.pat
 
 SOURCE_REPO = "https://github.com/fdeng18/dreamer-pro"
 SOURCE_COMMIT = "809b41757e1b08322011d5bcfc6e9f577f82c138"
-DEFAULT_SOURCE = Path("/work/.mirror/fdeng18+dreamer-pro/repo")  # a bare clone on this machine
 OUTPUT = Path(__file__).resolve().parent / "dreamerpro_dmc.json"
 STANDARD = "plots/standard_dmc/runs.json"
 NATURAL = "plots/natural_background_dmc/runs.json"
@@ -134,9 +132,7 @@ def convert(sources: dict[str, bytes]) -> list[dict]:
 def main(argv: list[str] | None = None) -> int:
     return conversion.main(
         argv, description=__doc__.split("\n\n")[0], output=OUTPUT,
-        path={"nargs": "?", "default": DEFAULT_SOURCE,
-              "help": f"dreamer-pro checkout (work tree or git directory; default "
-                      f"{DEFAULT_SOURCE})"},
+        path={"help": "dreamer-pro checkout (work tree or git directory)"},
         read_sources=read_sources, check_sources=check_sources, convert=convert)
 
 
