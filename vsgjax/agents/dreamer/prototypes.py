@@ -24,6 +24,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import optax
 
 _HIGHEST = jax.lax.Precision.HIGHEST
 
@@ -162,8 +163,7 @@ def two_views(
 def ema_update(online, target, fraction: float, first: jax.Array):
     """``target ← mix · online + (1 - mix) · target`` leafwise, ``mix = 1`` (a copy) where
     ``first`` (the release's first update) else ``fraction``."""
-    mix = jnp.where(first, 1.0, fraction)
-    return jax.tree.map(lambda o, t: (mix * o + (1.0 - mix) * t).astype(t.dtype), online, target)
+    return optax.incremental_update(online, target, jnp.where(first, 1.0, fraction))
 
 
 def freeze(grads, frozen: jax.Array):

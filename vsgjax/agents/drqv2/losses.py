@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import optax
 
 
 def stack_frames(images: jax.Array, last: int, count: int) -> jax.Array:
@@ -87,4 +88,4 @@ def actor_loss(q1: jax.Array, q2: jax.Array) -> jax.Array:
 
 def polyak(online, target, tau: float):
     """``target <- tau * online + (1 - tau) * target`` leaf by leaf (``soft_update_params``)."""
-    return jax.tree.map(lambda p, t: tau * p + (1.0 - tau) * t, online, target)
+    return optax.incremental_update(online, target, tau)
