@@ -91,8 +91,10 @@ def test_device_loop_stopped_and_resumed_equals_the_uninterrupted_run(tmp_path):
     assert resumed.resumed and resumed.env_steps == 160
     assert run(resumed) == 0
     assert_trees_equal(resumed.state, whole.state)  # agent, optimiser, device replay, key
-    assert dataclasses.replace(resumed.counters, wall_s=0, cpu_s=0, last_ckpt_updates=0) == \
-        dataclasses.replace(whole.counters, wall_s=0, cpu_s=0, last_ckpt_updates=0)
+    assert dataclasses.replace(resumed.counters, wall_s=0, cpu_s=0, last_ckpt_updates=0,
+                               last_ckpt_step=0) == \
+        dataclasses.replace(whole.counters, wall_s=0, cpu_s=0, last_ckpt_updates=0,
+                            last_ckpt_step=0)
     xs, ys = scores(tmp_path / "whole")
     assert xs == [160, 240, 320] and scores(tmp_path / "parts") == (xs, ys)
     assert records(tmp_path / "parts") == records(tmp_path / "whole")  # train/*, gates/*, ...

@@ -177,11 +177,13 @@ def test_an_attempt_killed_before_its_first_checkpoint_is_moved_aside(old_run):
     shutil.rmtree(old_run / "checkpoints")
     (old_run / "scores.jsonl").write_text('{"xs": [], "ys": []}\n')
     before = snapshot(old_run)
+    (old_run / "launch.log").write_text("# launch 2\n")  # open in the launcher: it stays
     run = RunWriter(config(), old_run)
     try:
         assert run.attempt_moved_to.parent == old_run / PREVIOUS_DIR
         assert snapshot(run.attempt_moved_to) == before
         assert not run.episode_paths() and not (old_run / "metrics.jsonl").exists()
+        assert (old_run / "launch.log").read_text() == "# launch 2\n"
     finally:
         run.unlock()
     fresh = RunWriter(config(), old_run)  # an empty attempt moves nothing

@@ -110,6 +110,26 @@ def test_next_multiple_and_env_seeds():
     assert schedule.env_seed(7, 500) != schedule.env_seed(7, 600)
 
 
+def test_the_first_evaluation_is_checkpointed_at_once_then_every_ckpt_every_updates():
+    """A run killed after its first evaluation resumes from the checkpoint saved right after
+    it (training refuses evaluations that no checkpoint resumes)."""
+    config = make_config("mjx_cartpole_balance", "vsg", "debug", ["train.ckpt_every=10"])
+    plan = schedule.Schedule(config)
+    plan.counters.agent_steps = 40
+    plan.start_training()
+    plan.counters.updates = 3
+    assert not plan.ckpt_due()  # no evaluation yet
+    plan.eval_done()
+    assert plan.ckpt_due()
+    plan.ckpt_done()
+    assert plan.counters.last_ckpt_step == plan.env_steps
+    plan.counters.agent_steps, plan.counters.updates = 400, 12
+    plan.eval_done()
+    assert not plan.ckpt_due()  # later evaluations wait for ckpt_every
+    plan.counters.updates = 13
+    assert plan.ckpt_due()
+
+
 def test_non_finite_names_update_and_bad_metrics():
     assert driver.non_finite({"wm/loss": 1.0}, 3, 120) is None
     problem = driver.non_finite({"wm/loss": math.nan, "actor/loss": 0.5}, 3, 120)

@@ -5,7 +5,7 @@ silently replaced, mixed with another or pruned of its only good data.
 * :class:`RunLock`: one training process per run directory.
 * :func:`move_aside`: the old contents (``--restart``; a first attempt killed before its first
   checkpoint and evaluation), or the episodes a killed run wrote after its newest checkpoint,
-  go to ``previous/<UTC time>/``; nothing is deleted.
+  go to ``previous/<UTC time>/`` (process logs stay); nothing is deleted.
 * :func:`set_aside_corrupt`: a corrupt checkpoint goes to ``checkpoints/corrupt/`` (out of the
   kept ones); when every checkpoint is corrupt, nothing is touched and the run is refused.
 * :func:`remove_interrupted_writes`: the temporary files of writes that a killed process left
@@ -23,6 +23,7 @@ from pathlib import Path
 from vsgjax.data import checkpoint
 
 LOCK_FILE = ".lock"
+PROCESS_LOG_SUFFIX = ".log"  # a launcher's log of the process writing the run: never moved
 PREVIOUS_DIR = "previous"  # ``--restart`` moves the old contents into previous/<UTC time>/
 CORRUPT_DIR = "corrupt"  # under checkpoints/
 RESTART_HINT = ("rerun with --restart to move the old contents to {previous}/ and start over, "
@@ -73,12 +74,13 @@ class RunLock:
 
 
 def move_aside(logdir: Path, entries: list[Path] | None = None) -> Path | None:
-    """Move ``entries`` of ``logdir`` (by default every entry but the lock and ``previous/``)
-    into ``previous/<UTC time>/``, each at its path relative to ``logdir``; returns that
-    directory (None when there was nothing to move)."""
+    """Move ``entries`` of ``logdir`` (by default every entry but the lock, ``previous/`` and
+    process logs ``*.log``, which a launcher keeps open and appends to across attempts) into
+    ``previous/<UTC time>/``, each at its path relative to ``logdir``; returns that directory
+    (None when there was nothing to move)."""
     if entries is None:
         entries = [p for p in sorted(logdir.iterdir())
-                   if p.name not in (LOCK_FILE, PREVIOUS_DIR)]
+                   if p.name not in (LOCK_FILE, PREVIOUS_DIR) and p.suffix != PROCESS_LOG_SUFFIX]
     if not entries:
         return None
     stamp = datetime.datetime.now(datetime.UTC).strftime("%Y%m%dT%H%M%SZ")

@@ -27,6 +27,7 @@ class Counters:
     next_video: int = 0
     last_eval: int = -1  # env step of the latest evaluation
     last_ckpt_updates: int = 0
+    last_ckpt_step: int = -1  # env step of the latest checkpoint
     # the run's wall and CPU seconds (all threads) so far; a process training S seeds charges
     # each 1/S of its time
     wall_s: float = 0.0
@@ -101,8 +102,13 @@ class Schedule:
         self.counters.next_video = next_multiple(self.env_steps, self.train.video_every)
 
     def ckpt_due(self) -> bool:
+        """Every ``train.ckpt_every`` updates, and right after the first evaluation: a run
+        killed between that evaluation and its first checkpoint would hold scores that no
+        checkpoint resumes, which training refuses to overwrite."""
         c = self.counters
-        return c.updates >= c.last_ckpt_updates + self.train.ckpt_every
+        first_evaluation_unsaved = c.last_eval >= 0 and c.last_ckpt_step < 0
+        return first_evaluation_unsaved or c.updates >= c.last_ckpt_updates + self.train.ckpt_every
 
     def ckpt_done(self) -> None:
         self.counters.last_ckpt_updates = self.counters.updates
+        self.counters.last_ckpt_step = self.env_steps
