@@ -484,8 +484,9 @@ def test_a_run_dir_with_another_config_is_reported_and_left_alone(definitions, t
 
 
 def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
-    """``cpu_memory``: 3 seeds per variant model, 2 for the memoryless controls, 3 for SVSG
-    and DreamerV1; every run's config (variant options included) resolves."""
+    """``cpu_memory``: 3 seeds per variant model, 2 for the memoryless controls and the
+    tuning trial, 3 for SVSG and DreamerV1; every run's config (variant options included)
+    resolves."""
     experiment = load_experiment("cpu_memory")
     seeds = {}
     for run in experiment.runs:
@@ -494,6 +495,12 @@ def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
     assert seeds[("mjx_cartpole_swingup", "VSG-hidevel")] == [0, 1, 2]
     assert seeds[("mjx_cartpole_swingup", "DreamerV2-hidevel-memoryless")] == [0, 1]
     assert seeds[("mjx_reacher_easy", "DreamerV2-memoryless")] == [0, 1]
+    assert seeds[("mjx_cartpole_swingup", "VSG-hidevel-kappa05")] == [0, 1]
     assert seeds[("mjx_walker_walk", "SVSG")] == [0, 1, 2]
-    assert len(experiment.runs) == 3 * 2 * 3 + 2 * 4 + 2 * 2 * 3
-    assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 4 + 2 * 2
+    tuned = {run.method: run.config().wm for run in experiment.runs if run.seed == 0
+             and run.method.startswith("VSG-hidevel")}
+    assert {method: (wm.gate_kappa, wm.kl_scale) for method, wm in tuned.items()} == {
+        "VSG-hidevel": (0.4, 1.0), "VSG-hidevel-kappa05": (0.5, 1.0),
+        "VSG-hidevel-kl03": (0.4, 0.3)}
+    assert len(experiment.runs) == 3 * 2 * 3 + 2 * 4 + 2 * 2 + 2 * 2 * 3
+    assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 4 + 2 + 2 * 2

@@ -164,6 +164,7 @@ def test_cpu_memory_defines_its_panels():
     assert figure["at"] == [20_000, 60_000, 100_000]
     assert [(p["task"], p.get("compare")) for p in figure["panels"]] == [
         (CARTPOLE, ["VSG-hidevel", "DreamerV2-hidevel"]),
+        (CARTPOLE, ["VSG-hidevel-kappa05", "DreamerV2-hidevel"]),
         ("mjx_reacher_easy", ["VSG-target10", "DreamerV2-target10"]),
         (CARTPOLE, ["VSG-noise16", "DreamerV2-noise16"]),
         (CARTPOLE, None), ("mjx_reacher_easy", None),
