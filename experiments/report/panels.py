@@ -7,11 +7,13 @@ A ``[[figures]]`` entry ``kind = "panels"`` has ``at`` (env steps) and ``[[figur
 tables ``{title, task, methods, compare}`` (``title`` defaults to the task, ``compare`` is
 optional). A value at a step is the evaluation nearest to it and at most one grid bin away (the
 bars' rule). The gate columns are the mean over seeds of each seed's last ``gates/open`` and
-``gates/closed_run_mean`` in its ``metrics.jsonl`` (VSG and SVSG log them; others read —).
+``gates/closed_run_mean`` in its ``metrics.jsonl`` (VSG and SVSG log them; others read —),
+beside ``1 / open``, the closed run that independent gates would give.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -168,9 +170,15 @@ def value_cells(data: PanelsData, task: str, method: str) -> list[str]:
 
 
 def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
-    """Each gate key's mean over seeds, — where no seed logged it."""
+    """Each gate key's mean over seeds, then ``1 / open``: the mean closed run of gates that
+    open independently at each step with the same probability (geometric lengths); a logged
+    closed run near it means the gates hold nothing longer than coin flips would. — where no
+    seed logged them."""
     stats = data.gates[(task, method)]
-    return [fmt(stats[key].mean, GATE_DIGITS[key]) for key in GATE_KEYS]
+    open_ = stats["gates/open"].mean
+    independent = 1 / open_ if open_ else math.inf  # never open: one endless closed run
+    return [fmt(stats[key].mean, GATE_DIGITS[key]) for key in GATE_KEYS] + [
+        fmt(independent, GATE_DIGITS["gates/closed_run_mean"])]
 
 
 def verdict(data: PanelsData, panel: Panel) -> str:
@@ -199,7 +207,7 @@ def panels_markdown(data: PanelsData) -> str:
     """Per panel x method: the values at the ``at`` steps and the gate columns; then the
     verdict of every panel with ``compare``."""
     header = ["panel", "method"] + [f"{step_label(a)} env steps" for a in data.at] + [
-        "gate open fraction", "closed-run length (steps)"]
+        "gate open fraction", "closed-run length (steps)", "if independent (1 / open)"]
     rows = [header] + [[panel.title, method] + value_cells(data, panel.task, method)
                        + gate_cells(data, panel.task, method)
                        for panel in data.panels for method in panel.methods]
@@ -208,7 +216,9 @@ def panels_markdown(data: PanelsData) -> str:
              f"interval ({step_label(data.spacing)} env steps) away: mean ± std over seeds "
              "(n seeds). Gate columns: the mean over seeds of each seed's last `gates/open` "
              "and `gates/closed_run_mean` in `metrics.jsonl` (— for a method that logs no "
-             "gates, or none yet).")
+             "gates, or none yet), and the mean closed run of gates that would open "
+             "independently at every step with that probability, 1 / open (a little less in "
+             "the training window, which cuts runs at its edges).")
     verdicts = [verdict(data, panel) for panel in data.panels if panel.compare and data.at]
     if verdicts:
         text += "\n\n" + "\n".join(f"- {line}" for line in verdicts)

@@ -104,14 +104,16 @@ def test_panels_table_gates_verdicts_and_files(tmp_path):
     assert "![panels](panels.png)" in built.markdown.read_text()
 
     rows = table_rows(section.markdown)
-    # at 20k and 100k, then gate open fraction and closed-run length
-    assert rows[("hidden", "VSG-hidevel")] == [
-        "20.0 ± 8.2 (n=3)", "400.0 ± 81.6 (n=3)", "0.32", "4.3"]  # (0.2+0.3+0.45)/3, 13/3
+    # at 20k and 100k, then gate open fraction, closed-run length and 1 / open
+    assert rows[("hidden", "VSG-hidevel")] == [  # (0.2+0.3+0.45)/3, 13/3, 3/0.95
+        "20.0 ± 8.2 (n=3)", "400.0 ± 81.6 (n=3)", "0.32", "4.3", "3.2"]
     assert rows[("hidden", "DreamerV2-hidevel")] == [
-        "5.0 ± 0.0 (n=3)", "250.0 ± 40.8 (n=3)", "—", "—"]  # logs no gates
-    assert rows[("noise", "VSG-noise16")] == ["2.0 ± 1.0 (n=2)", "335.0 ± 10.0 (n=2)", "—", "—"]
+        "5.0 ± 0.0 (n=3)", "250.0 ± 40.8 (n=3)", "—", "—", "—"]  # logs no gates
+    assert rows[("noise", "VSG-noise16")] == ["2.0 ± 1.0 (n=2)", "335.0 ± 10.0 (n=2)", "—", "—",
+                                              "—"]
     assert rows[("noise", "DreamerV2-noise16")][1] == "320.0 ± 32.7 (n=3)"
-    assert rows[("empty", "DreamerV2-memoryless")] == ["no runs yet", "no runs yet", "—", "—"]
+    assert rows[("empty", "DreamerV2-memoryless")] == ["no runs yet", "no runs yet", "—", "—",
+                                                       "—"]
     assert rows[("walker", "SVSG")][:2] == ["1.0 ± 0.0 (n=1)", "3.0 ± 0.0 (n=1)"]
 
     # 400 - 250 = +150 > 40.8; 250 - 400 = -150 < -81.6; 335 - 320 = +15 within 32.7 (though
