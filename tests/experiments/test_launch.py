@@ -501,6 +501,6 @@ def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
              and run.method.startswith("VSG-hidevel")}
     assert {method: (wm.gate_kappa, wm.kl_scale) for method, wm in tuned.items()} == {
         "VSG-hidevel": (0.4, 1.0), "VSG-hidevel-kappa05": (0.5, 1.0),
-        "VSG-hidevel-kl03": (0.4, 0.3)}
+        "VSG-hidevel-kappa03": (0.3, 1.0)}
     assert len(experiment.runs) == 3 * 2 * 3 + 2 * 4 + 2 * 2 + 2 * 2 * 3
     assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 4 + 2 + 2 * 2
