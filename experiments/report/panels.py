@@ -7,8 +7,8 @@ A ``[[figures]]`` entry ``kind = "panels"`` has ``at`` (env steps) and ``[[figur
 tables ``{title, task, methods, compare}`` (``title`` defaults to the task, ``compare`` is
 optional). A value at a step is the evaluation nearest to it and at most one grid bin away (the
 bars' rule). The gate columns are the mean over seeds of each seed's last ``gates/open`` and
-``gates/closed_run_mean`` in its ``metrics.jsonl`` (VSG and SVSG log them; others read —),
-beside ``1 / open``, the closed run that independent gates would give.
+``gates/closed_run_mean`` and ``gates/kl`` in its ``metrics.jsonl`` (VSG and SVSG log them;
+others read —), beside ``1 / open``, the closed run that independent gates would give.
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ from experiments.report.style import (
 from experiments.spec import Run
 from vsgjax.loop.rundir import METRICS_FILE
 
-GATE_KEYS = ("gates/open", "gates/closed_run_mean")  # the table's gate columns, in order
-GATE_DIGITS = {"gates/open": 2, "gates/closed_run_mean": 1}
+GATE_KEYS = ("gates/open", "gates/closed_run_mean", "gates/kl")  # read from metrics.jsonl
+GATE_DIGITS = {"gates/open": 2, "gates/closed_run_mean": 1, "gates/kl": 3}
 NO_RUNS = "no runs yet"
 
 
@@ -170,15 +170,17 @@ def value_cells(data: PanelsData, task: str, method: str) -> list[str]:
 
 
 def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
-    """Each gate key's mean over seeds, then ``1 / open``: the mean closed run of gates that
-    open independently at each step with the same probability (geometric lengths); a logged
-    closed run near it means the gates hold nothing longer than coin flips would. — where no
-    seed logged them."""
+    """Open fraction, closed-run length, ``1 / open`` and gate KL: each key's mean over seeds
+    (— where no seed logged it). ``1 / open`` is the mean closed run of gates that open
+    independently at each step with the same probability (geometric lengths): a logged run
+    near it means the gates hold nothing longer than coin flips would. The gate KL to
+    Bernoulli(kappa), summed over units, is what the sparsity loss holds at ``wm.gate_free``."""
     stats = data.gates[(task, method)]
     open_ = stats["gates/open"].mean
     independent = 1 / open_ if open_ else math.inf  # never open: one endless closed run
-    return [fmt(stats[key].mean, GATE_DIGITS[key]) for key in GATE_KEYS] + [
-        fmt(independent, GATE_DIGITS["gates/closed_run_mean"])]
+    cells = {key: fmt(stats[key].mean, GATE_DIGITS[key]) for key in GATE_KEYS}
+    return [cells["gates/open"], cells["gates/closed_run_mean"],
+            fmt(independent, GATE_DIGITS["gates/closed_run_mean"]), cells["gates/kl"]]
 
 
 def verdict(data: PanelsData, panel: Panel) -> str:
@@ -207,7 +209,8 @@ def panels_markdown(data: PanelsData) -> str:
     """Per panel x method: the values at the ``at`` steps and the gate columns; then the
     verdict of every panel with ``compare``."""
     header = ["panel", "method"] + [f"{step_label(a)} env steps" for a in data.at] + [
-        "gate open fraction", "closed-run length (steps)", "if independent (1 / open)"]
+        "gate open fraction", "closed-run length (steps)", "if independent (1 / open)",
+        "gate KL (nats, Σ units)"]
     rows = [header] + [[panel.title, method] + value_cells(data, panel.task, method)
                        + gate_cells(data, panel.task, method)
                        for panel in data.panels for method in panel.methods]
@@ -216,9 +219,11 @@ def panels_markdown(data: PanelsData) -> str:
              f"interval ({step_label(data.spacing)} env steps) away: mean ± std over seeds "
              "(n seeds). Gate columns: the mean over seeds of each seed's last `gates/open` "
              "and `gates/closed_run_mean` in `metrics.jsonl` (— for a method that logs no "
-             "gates, or none yet), and the mean closed run of gates that would open "
+             "gates, or none yet); the mean closed run of gates that would open "
              "independently at every step with that probability, 1 / open (a little less in "
-             "the training window, which cuts runs at its edges).")
+             "the training window, which cuts runs at its edges); and the last `gates/kl`, "
+             "the gates' KL to Bernoulli(kappa) summed over units, which the sparsity loss "
+             "holds at its free nats (`wm.gate_free`).")
     verdicts = [verdict(data, panel) for panel in data.panels if panel.compare and data.at]
     if verdicts:
         text += "\n\n" + "\n".join(f"- {line}" for line in verdicts)
