@@ -6,9 +6,10 @@ verdict at the last of those steps.
 A ``[[figures]]`` entry ``kind = "panels"`` has ``at`` (env steps) and ``[[figures.panels]]``
 tables ``{title, task, methods, compare}`` (``title`` defaults to the task, ``compare`` is
 optional). A value at a step is the evaluation nearest to it and at most one grid bin away (the
-bars' rule). The gate columns are the mean over seeds of each seed's last ``gates/open`` and
-``gates/closed_run_mean`` and ``gates/kl`` in its ``metrics.jsonl`` (VSG and SVSG log them;
-others read —), beside ``1 / open``, the closed run that independent gates would give.
+bars' rule). The gate columns are the mean over seeds of each seed's last ``gates/open``,
+``gates/closed_run_mean``, ``gates/prob_post_std`` and ``gates/kl`` in its ``metrics.jsonl``
+(VSG and SVSG log them; others read —), beside ``1 / open``, the closed run that independent
+gates would give.
 """
 
 from __future__ import annotations
@@ -36,8 +37,9 @@ from experiments.report.style import (
 from experiments.spec import Run
 from vsgjax.loop.rundir import METRICS_FILE
 
-GATE_KEYS = ("gates/open", "gates/closed_run_mean", "gates/kl")  # read from metrics.jsonl
-GATE_DIGITS = {"gates/open": 2, "gates/closed_run_mean": 1, "gates/kl": 3}
+GATE_KEYS = ("gates/open", "gates/closed_run_mean", "gates/prob_post_std", "gates/kl")
+GATE_DIGITS = {"gates/open": 2, "gates/closed_run_mean": 1, "gates/prob_post_std": 3,
+               "gates/kl": 3}
 NO_RUNS = "no runs yet"
 
 
@@ -170,17 +172,20 @@ def value_cells(data: PanelsData, task: str, method: str) -> list[str]:
 
 
 def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
-    """Open fraction, closed-run length, ``1 / open`` and gate KL: each key's mean over seeds
-    (— where no seed logged it). ``1 / open`` is the mean closed run of gates that open
-    independently at each step with the same probability (geometric lengths): a logged run
-    near it means the gates hold nothing longer than coin flips would. The gate KL to
-    Bernoulli(kappa), summed over units, is what the sparsity loss holds at ``wm.gate_free``."""
+    """Open fraction, closed-run length, ``1 / open``, the gate probability's spread and the
+    gate KL: each key's mean over seeds (— where no seed logged it). ``1 / open`` is the mean
+    closed run of gates that open independently at each step with the same probability
+    (geometric lengths): a logged run near it means the gates hold nothing longer than coin
+    flips would. A spread near 0 means the probability hardly depends on the state. The gate
+    KL to Bernoulli(kappa), summed over units, is what the sparsity loss holds at
+    ``wm.gate_free``."""
     stats = data.gates[(task, method)]
     open_ = stats["gates/open"].mean
     independent = 1 / open_ if open_ else math.inf  # never open: one endless closed run
     cells = {key: fmt(stats[key].mean, GATE_DIGITS[key]) for key in GATE_KEYS}
     return [cells["gates/open"], cells["gates/closed_run_mean"],
-            fmt(independent, GATE_DIGITS["gates/closed_run_mean"]), cells["gates/kl"]]
+            fmt(independent, GATE_DIGITS["gates/closed_run_mean"]),
+            cells["gates/prob_post_std"], cells["gates/kl"]]
 
 
 def verdict(data: PanelsData, panel: Panel) -> str:
@@ -210,7 +215,7 @@ def panels_markdown(data: PanelsData) -> str:
     verdict of every panel with ``compare``."""
     header = ["panel", "method"] + [f"{step_label(a)} env steps" for a in data.at] + [
         "gate open fraction", "closed-run length (steps)", "if independent (1 / open)",
-        "gate KL (nats, Σ units)"]
+        "gate probability std", "gate KL (nats, Σ units)"]
     rows = [header] + [[panel.title, method] + value_cells(data, panel.task, method)
                        + gate_cells(data, panel.task, method)
                        for panel in data.panels for method in panel.methods]
@@ -221,9 +226,11 @@ def panels_markdown(data: PanelsData) -> str:
              "and `gates/closed_run_mean` in `metrics.jsonl` (— for a method that logs no "
              "gates, or none yet); the mean closed run of gates that would open "
              "independently at every step with that probability, 1 / open (a little less in "
-             "the training window, which cuts runs at its edges); and the last `gates/kl`, "
-             "the gates' KL to Bernoulli(kappa) summed over units, which the sparsity loss "
-             "holds at its free nats (`wm.gate_free`).")
+             "the training window, which cuts runs at its edges); the last "
+             "`gates/prob_post_std`, the spread of the gate probability over units, steps and "
+             "sequences (near 0: the gates respond to nothing); and the last `gates/kl`, the "
+             "gates' KL to Bernoulli(kappa) summed over units, which the sparsity loss holds "
+             "at its free nats (`wm.gate_free`).")
     verdicts = [verdict(data, panel) for panel in data.panels if panel.compare and data.at]
     if verdicts:
         text += "\n\n" + "\n".join(f"- {line}" for line in verdicts)

@@ -35,9 +35,11 @@ RETURNS = {
     "VSG-noise16": [(1, 2, 325), (3, 4, 345)],  # seed 2 missing; 100k: 335 ± 10
     "DreamerV2-noise16": [(0, 0, 280), (0, 0, 320), (0, 0, 360)],  # 100k: 320 ± 32.7
 }
-# VSG-hidevel's gates per seed: (open, closed-run length, KL) of earlier lines, then the last
-GATES = [((0.9, 100.0, 5.0), (0.2, 3.0, 0.09)), ((0.9, 100.0, 5.0), (0.3, 4.0, 0.1)),
-         ((0.9, 100.0, 5.0), (0.45, 6.0, 0.14))]
+# VSG-hidevel's gates per seed: (open, closed-run length, probability std, KL) of earlier
+# lines, then the last
+GATES = [((0.9, 100.0, 0.3, 5.0), (0.2, 3.0, 0.01, 0.09)),
+         ((0.9, 100.0, 0.3, 5.0), (0.3, 4.0, 0.02, 0.1)),
+         ((0.9, 100.0, 0.3, 5.0), (0.45, 6.0, 0.06, 0.14))]
 
 
 def experiment_with_panels(panels=PANELS, at=(20_000, 100_000)):
@@ -59,12 +61,12 @@ def write_scores(run, root, ys):
 
 
 def write_metrics(run, root, gates):
-    """A train line, a gates line per (open, closed-run length, KL), then an eval line without
-    gates: the last gates line is not the file's last line."""
+    """A train line, a gates line per (open, closed-run length, probability std, KL), then an
+    eval line without gates: the last gates line is not the file's last line."""
     lines = [{"step": 2_000, "train/loss": 1.0}]
     lines += [{"step": 4_000 * k, "gates/open": open_, "gates/closed_run_mean": closed,
-               "gates/kl": kl, "gates/never_open": 0.0}
-              for k, (open_, closed, kl) in enumerate(gates, 1)]
+               "gates/prob_post_std": spread, "gates/kl": kl, "gates/never_open": 0.0}
+              for k, (open_, closed, spread, kl) in enumerate(gates, 1)]
     lines += [{"step": 100_000, "eval/return": 1.0}]
     path = run.logdir(root) / "metrics.jsonl"
     path.write_text("".join(json.dumps(line) + "\n" for line in lines))
@@ -106,16 +108,16 @@ def test_panels_table_gates_verdicts_and_files(tmp_path):
     assert "![panels](panels.png)" in built.markdown.read_text()
 
     rows = table_rows(section.markdown)
-    # at 20k and 100k, then gate open fraction, closed-run length, 1 / open and gate KL
-    assert rows[("hidden", "VSG-hidevel")] == [  # (0.2+0.3+0.45)/3, 13/3, 3/0.95, 0.33/3
-        "20.0 ± 8.2 (n=3)", "400.0 ± 81.6 (n=3)", "0.32", "4.3", "3.2", "0.110"]
+    # at 20k and 100k, then open fraction, closed-run length, 1 / open, probability std, KL
+    assert rows[("hidden", "VSG-hidevel")] == [  # (0.2+0.3+0.45)/3, 13/3, 3/0.95, 0.09/3, 0.33/3
+        "20.0 ± 8.2 (n=3)", "400.0 ± 81.6 (n=3)", "0.32", "4.3", "3.2", "0.030", "0.110"]
     assert rows[("hidden", "DreamerV2-hidevel")] == [
-        "5.0 ± 0.0 (n=3)", "250.0 ± 40.8 (n=3)", "—", "—", "—", "—"]  # logs no gates
+        "5.0 ± 0.0 (n=3)", "250.0 ± 40.8 (n=3)", "—", "—", "—", "—", "—"]  # logs no gates
     assert rows[("noise", "VSG-noise16")] == ["2.0 ± 1.0 (n=2)", "335.0 ± 10.0 (n=2)", "—", "—",
-                                              "—", "—"]
+                                              "—", "—", "—"]
     assert rows[("noise", "DreamerV2-noise16")][1] == "320.0 ± 32.7 (n=3)"
     assert rows[("empty", "DreamerV2-memoryless")] == ["no runs yet", "no runs yet", "—", "—",
-                                                       "—", "—"]
+                                                       "—", "—", "—"]
     assert rows[("walker", "SVSG")][:2] == ["1.0 ± 0.0 (n=1)", "3.0 ± 0.0 (n=1)"]
 
     # 400 - 250 = +150 > 40.8; 250 - 400 = -150 < -81.6; 335 - 320 = +15 within 32.7 (though

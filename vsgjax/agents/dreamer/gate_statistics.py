@@ -98,6 +98,8 @@ class GateStatistics:
             "gates/open": self.gate.mean(),
             "gates/open_prior": self.prior_gate.mean(),
             "gates/prob_post": self.post_prob.mean(),
+            # 0 when every gate is the same coin whatever the state: the gates respond to nothing
+            "gates/prob_post_std": self.post_prob.std(),
             "gates/prob_prior": self.prior_prob.mean(),
             "gates/kl": self.kl,
             "gates/open_per_step_std": self.open_per_step.std(),
