@@ -173,7 +173,8 @@ def value_cells(data: PanelsData, task: str, method: str) -> list[str]:
 
 def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
     """Open fraction, closed-run length, ``1 / open``, the gate probability's spread and the
-    gate KL: each key's mean over seeds (— where no seed logged it). ``1 / open`` is the mean
+    gate KL: each key's mean over seeds (— where no seed logged it; ``(n=k)`` where only k of
+    the method's seeds with scores did). ``1 / open`` is the mean
     closed run of gates that open independently at each step with the same probability
     (geometric lengths): a logged run near it means the gates hold nothing longer than coin
     flips would. A spread near 0 means the probability hardly depends on the state. The gate
@@ -182,7 +183,10 @@ def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
     stats = data.gates[(task, method)]
     open_ = stats["gates/open"].mean
     independent = 1 / open_ if open_ else math.inf  # never open: one endless closed run
-    cells = {key: fmt(stats[key].mean, GATE_DIGITS[key]) for key in GATE_KEYS}
+    seeds = len(data.seeds.get((task, method), []))
+    cells = {key: fmt(stats[key].mean, GATE_DIGITS[key])
+             + (f" (n={stats[key].n})" if 0 < stats[key].n < seeds else "")
+             for key in GATE_KEYS}
     return [cells["gates/open"], cells["gates/closed_run_mean"],
             fmt(independent, GATE_DIGITS["gates/closed_run_mean"]),
             cells["gates/prob_post_std"], cells["gates/kl"]]
@@ -224,7 +228,7 @@ def panels_markdown(data: PanelsData) -> str:
              f"interval ({step_label(data.spacing)} env steps) away: mean ± std over seeds "
              "(n seeds). Gate columns: the mean over seeds of each seed's last `gates/open` "
              "and `gates/closed_run_mean` in `metrics.jsonl` (— for a method that logs no "
-             "gates, or none yet); the mean closed run of gates that would open "
+             "gates, or none yet; (n=k) where only k of its seeds logged the key); the mean closed run of gates that would open "
              "independently at every step with that probability, 1 / open (a little less in "
              "the training window, which cuts runs at its edges); the last "
              "`gates/prob_post_std`, the spread of the gate probability over units, steps and "

@@ -36,8 +36,8 @@ RETURNS = {
     "DreamerV2-noise16": [(0, 0, 280), (0, 0, 320), (0, 0, 360)],  # 100k: 320 ± 32.7
 }
 # VSG-hidevel's gates per seed: (open, closed-run length, probability std, KL) of earlier
-# lines, then the last
-GATES = [((0.9, 100.0, 0.3, 5.0), (0.2, 3.0, 0.01, 0.09)),
+# lines, then the last (seed 0 logs no probability std: a run from before that key)
+GATES = [((0.9, 100.0, None, 5.0), (0.2, 3.0, None, 0.09)),
          ((0.9, 100.0, 0.3, 5.0), (0.3, 4.0, 0.02, 0.1)),
          ((0.9, 100.0, 0.3, 5.0), (0.45, 6.0, 0.06, 0.14))]
 
@@ -65,7 +65,8 @@ def write_metrics(run, root, gates):
     eval line without gates: the last gates line is not the file's last line."""
     lines = [{"step": 2_000, "train/loss": 1.0}]
     lines += [{"step": 4_000 * k, "gates/open": open_, "gates/closed_run_mean": closed,
-               "gates/prob_post_std": spread, "gates/kl": kl, "gates/never_open": 0.0}
+               "gates/kl": kl, "gates/never_open": 0.0}
+              | ({} if spread is None else {"gates/prob_post_std": spread})
               for k, (open_, closed, spread, kl) in enumerate(gates, 1)]
     lines += [{"step": 100_000, "eval/return": 1.0}]
     path = run.logdir(root) / "metrics.jsonl"
@@ -109,8 +110,8 @@ def test_panels_table_gates_verdicts_and_files(tmp_path):
 
     rows = table_rows(section.markdown)
     # at 20k and 100k, then open fraction, closed-run length, 1 / open, probability std, KL
-    assert rows[("hidden", "VSG-hidevel")] == [  # (0.2+0.3+0.45)/3, 13/3, 3/0.95, 0.09/3, 0.33/3
-        "20.0 ± 8.2 (n=3)", "400.0 ± 81.6 (n=3)", "0.32", "4.3", "3.2", "0.030", "0.110"]
+    assert rows[("hidden", "VSG-hidevel")] == [  # (0.2+0.3+0.45)/3, 13/3, 3/0.95, 0.08/2, 0.33/3
+        "20.0 ± 8.2 (n=3)", "400.0 ± 81.6 (n=3)", "0.32", "4.3", "3.2", "0.040 (n=2)", "0.110"]
     assert rows[("hidden", "DreamerV2-hidevel")] == [
         "5.0 ± 0.0 (n=3)", "250.0 ± 40.8 (n=3)", "—", "—", "—", "—", "—"]  # logs no gates
     assert rows[("noise", "VSG-noise16")] == ["2.0 ± 1.0 (n=2)", "335.0 ± 10.0 (n=2)", "—", "—",
