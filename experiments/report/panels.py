@@ -62,6 +62,12 @@ class PanelsData:
     spacing: float
     at: list[float]
 
+    @property
+    def methods(self) -> list[str]:
+        """Every panel's methods in order of first appearance: a method keeps its colour in
+        every panel."""
+        return list(dict.fromkeys(m for panel in self.panels for m in panel.methods))
+
 
 def read_panels(entries, problems: list[str] | None = None) -> list[Panel]:
     """The panels of a figure entry's ``panels`` list; one without a task or methods is skipped
@@ -127,7 +133,7 @@ def draw_panel(ax, panel: Panel, data: PanelsData) -> None:
         seeds = data.seeds.get((panel.task, method), [])
         if not seeds:
             continue
-        c = colour(method, panel.methods)
+        c = colour(method, data.methods)
         x, mean, std, _ = seed_stats(binned(s, data.spacing) for s in seeds)
         ax.plot(x, mean, color=c, lw=1.5, label=f"{method} (n={len(seeds)})")
         ax.fill_between(x, mean - std, mean + std, color=c, alpha=0.2, lw=0)

@@ -8,10 +8,11 @@ import dataclasses
 import json
 
 import pytest
+from matplotlib.figure import Figure
 
 from experiments import report
 from experiments.report import Context, ReportWarning
-from experiments.report.panels import panels_data
+from experiments.report.panels import draw_panel, panels_data
 from experiments.spec import load_experiment
 
 CARTPOLE = "mjx_cartpole_swingup"
@@ -142,6 +143,25 @@ def test_panels_table_gates_verdicts_and_files(tmp_path):
     assert not any(run.method == "DreamerV2-memoryless" and run.task == CARTPOLE
                    for run in data.missing)  # only the panels' task x methods are read
     assert data.gates[(CARTPOLE, "VSG-hidevel")]["gates/open"].n == 3
+
+
+def test_a_method_keeps_its_colour_in_every_panel(tmp_path):
+    """The panels "hidden" and "tuning" list VSG-hidevel second and first; its line has one
+    colour, and no two methods of a panel share one."""
+    panels = [{"title": "hidden", "task": CARTPOLE,
+               "methods": ["DreamerV2-hidevel", "VSG-hidevel"]},
+              {"title": "tuning", "task": CARTPOLE,
+               "methods": ["VSG-hidevel", "VSG-noise16", "DreamerV2-noise16"]}]
+    experiment = experiment_with_panels(panels)
+    write_runs(experiment, tmp_path)
+    data = panels_data(Context.create(experiment, tmp_path), panels, [100_000])
+    axes = Figure().subplots(1, 2)
+    colours = []
+    for ax, panel in zip(axes, data.panels, strict=True):
+        draw_panel(ax, panel, data)
+        colours.append({line.get_label().split(" (")[0]: line.get_color() for line in ax.lines})
+    assert colours[0]["VSG-hidevel"] == colours[1]["VSG-hidevel"]
+    assert all(len(set(c.values())) == len(c) for c in colours)
 
 
 def test_a_report_without_any_runs_says_no_runs_yet(tmp_path):
