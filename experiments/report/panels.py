@@ -180,22 +180,23 @@ def value_cells(data: PanelsData, task: str, method: str) -> list[str]:
 def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
     """Open fraction, closed-run length, ``1 / open``, the gate probability's spread and the
     gate KL: each key's mean over seeds (— where no seed logged it; ``(n=k)`` where only k of
-    the method's seeds with scores did). ``1 / open`` is the mean
-    closed run of gates that open independently at each step with the same probability
-    (geometric lengths): a logged run near it means the gates hold nothing longer than coin
-    flips would. A spread near 0 means the probability hardly depends on the state. The gate
-    KL to Bernoulli(kappa), summed over units, is what the sparsity loss holds at
-    ``wm.gate_free``."""
+    the method's seeds with scores did). ``1 / open`` is the mean closed run of gates that open
+    independently at each step with the same probability (geometric lengths): a logged run near
+    it means the gates hold nothing longer than coin flips would. A spread near 0 means the
+    probability hardly depends on the state. The gate KL to Bernoulli(kappa), summed over
+    units, is what the sparsity loss holds at ``wm.gate_free``."""
     stats = data.gates[(task, method)]
+    seeds = len(data.seeds.get((task, method), []))
+
+    def cell(key: str) -> str:
+        partial = f" (n={stats[key].n})" if 0 < stats[key].n < seeds else ""
+        return fmt(stats[key].mean, GATE_DIGITS[key]) + partial
+
     open_ = stats["gates/open"].mean
     independent = 1 / open_ if open_ else math.inf  # never open: one endless closed run
-    seeds = len(data.seeds.get((task, method), []))
-    cells = {key: fmt(stats[key].mean, GATE_DIGITS[key])
-             + (f" (n={stats[key].n})" if 0 < stats[key].n < seeds else "")
-             for key in GATE_KEYS}
-    return [cells["gates/open"], cells["gates/closed_run_mean"],
+    return [cell("gates/open"), cell("gates/closed_run_mean"),
             fmt(independent, GATE_DIGITS["gates/closed_run_mean"]),
-            cells["gates/prob_post_std"], cells["gates/kl"]]
+            cell("gates/prob_post_std"), cell("gates/kl")]
 
 
 def verdict(data: PanelsData, panel: Panel) -> str:
@@ -236,12 +237,11 @@ def panels_markdown(data: PanelsData) -> str:
              "and `gates/closed_run_mean` in `metrics.jsonl` (— for a method that logs no "
              "gates, or none yet; (n=k) where only k of its seeds logged the key); the mean "
              "closed run of gates that would open independently at every step with that "
-             "probability, 1 / open (a little less in "
-             "the training window, which cuts runs at its edges); the last "
-             "`gates/prob_post_std`, the spread of the gate probability over units, steps and "
-             "sequences (near 0: the gates respond to nothing); and the last `gates/kl`, the "
-             "gates' KL to Bernoulli(kappa) summed over units, which the sparsity loss holds "
-             "at its free nats (`wm.gate_free`).")
+             "probability, 1 / open (a little less in the training window, which cuts runs at "
+             "its edges); the last `gates/prob_post_std`, the spread of the gate probability "
+             "over units, steps and sequences (near 0: the gates respond to nothing); and the "
+             "last `gates/kl`, the gates' KL to Bernoulli(kappa) summed over units, which the "
+             "sparsity loss holds at its free nats (`wm.gate_free`).")
     verdicts = [verdict(data, panel) for panel in data.panels if panel.compare and data.at]
     if verdicts:
         text += "\n\n" + "\n".join(f"- {line}" for line in verdicts)

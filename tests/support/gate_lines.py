@@ -10,9 +10,9 @@ import pytest
 import vsgjax
 
 SUMMARY_KEYS = {"gates/open", "gates/open_prior", "gates/prob_post", "gates/prob_post_std",
-                "gates/prob_prior",
-                "gates/kl", "gates/open_per_step_std", "gates/open_per_unit_std",
-                "gates/never_open", "gates/always_open", "gates/closed_run_mean"}
+                "gates/prob_prior", "gates/kl", "gates/open_per_step_std",
+                "gates/open_per_unit_std", "gates/never_open", "gates/always_open",
+                "gates/closed_run_mean"}
 
 
 def gate_lines(logdir: Path) -> list[dict]:
