@@ -16,6 +16,7 @@ from experiments.launch.jobs import (
     Process,
     group_processes,
     make_jobs,
+    next_to_start,
 )
 from experiments.launch.local import LocalRunner
 from experiments.launch.script import COMMANDS_FILE, SBATCH_FILE, write_print
@@ -31,6 +32,6 @@ from experiments.launch.status import (
 __all__ = [
     "BACKENDS", "COMMANDS_FILE", "DONE_FILE", "LOG_FILE", "SBATCH_FILE", "SUBMITIT_DIR", "Job",
     "LaunchError", "LocalRunner", "Process", "SlurmJob", "Status", "checkpoint_step",
-    "format_table", "group_processes", "job_status", "main", "make_jobs", "parse_args",
-    "submit_slurm", "train_status", "wait_slurm", "write_print",
+    "format_table", "group_processes", "job_status", "main", "make_jobs", "next_to_start",
+    "parse_args", "submit_slurm", "train_status", "wait_slurm", "write_print",
 ]

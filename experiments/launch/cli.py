@@ -41,8 +41,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     add_selection_arguments(parser)
     parser.add_argument("--backend", default="local", choices=BACKENDS)
     parser.add_argument("--jobs", type=int, default=None,
-                        help="jobs at a time (local: default 1; slurm / print: the array's "
-                             "parallelism, default unlimited)")
+                        help="jobs at a time (local: processes, default 1, or with seeds spread "
+                             "over host devices JOBS x seeds-per-process seeds; slurm / print: "
+                             "the array's parallelism, default unlimited)")
     parser.add_argument("--status", action="store_true", help="print the table, launch nothing")
     parser.add_argument("--task", action="append", default=[],
                         help="only this task's runs (repeat or comma-separate)")

@@ -103,6 +103,17 @@ class Process:
         return dict(base, XLA_FLAGS=flags.strip())
 
 
+def next_to_start(queue: Sequence[Process], free_devices: int, idle: bool) -> int | None:
+    """The index in ``queue`` of the first process whose ``devices`` fit in ``free_devices``,
+    or None. A process too large for now waits while a later, smaller one takes the room, so
+    that two single seeds train side by side on the cores one pair of seeds would use; on an
+    ``idle`` machine the first process starts whatever its size."""
+    if idle and queue:
+        return 0
+    return next((index for index, process in enumerate(queue)
+                 if process.devices <= free_devices), None)
+
+
 def group_processes(jobs: Sequence[Job], seeds_per_process: int, spread: bool,
                     resume_step: Callable[[Job], int | None]) -> list[Process]:
     """``jobs`` as processes, in order: training jobs of one task, method and config that

@@ -12,7 +12,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 
-from experiments.launch.jobs import Job, Process, group_processes
+from experiments.launch.jobs import Job, Process, group_processes, next_to_start
 from experiments.launch.process import (
     STOP_TIMEOUT_S,
     job_env,
@@ -63,10 +63,12 @@ class _Progress:
 
 @dataclass
 class LocalRunner:
-    """Runs jobs as subprocesses, ``parallel`` processes at a time, and shows their status.
+    """Runs jobs as subprocesses and shows their status: ``parallel`` processes at a time or,
+    with ``spread``, as many as fill ``parallel * seeds_per_process`` host devices.
 
     Training jobs of one task, method and config go ``seeds_per_process`` to a process (spread
-    over forced host devices with ``spread``; see :func:`group_processes`)."""
+    over forced host devices with ``spread``; see :func:`group_processes`); a lone seed (the
+    third of three, two to a process) then starts beside another one (:func:`next_to_start`)."""
 
     jobs: list[Job]
     parallel: int = 1
@@ -101,6 +103,12 @@ class LocalRunner:
         return group_processes(launchable, self.seeds_per_process, self.spread,
                                lambda job: checkpoint_step(job.job_dir))
 
+    def _next(self, queue: list[Process], running: dict) -> int | None:
+        """The index in ``queue`` of the process to start now, or None."""
+        capacity = self.parallel * (self.seeds_per_process if self.spread else 1)
+        used = sum(process.devices for process, _, _ in running.values())
+        return next_to_start(queue, capacity - used, idle=not running)
+
     def _start(self, process: Process, env: dict[str, str]) -> tuple[subprocess.Popen, object]:
         command = process.command()
         log = open_log(process.leader.job_dir, command, "launch (local)")
@@ -132,8 +140,8 @@ class LocalRunner:
                     killed = True
                     for _, child, _ in running.values():
                         send_signal(child, signal.SIGKILL)
-                while self._stop is None and queue and len(running) < self.parallel:
-                    process = queue.pop(0)
+                while self._stop is None and (index := self._next(queue, running)) is not None:
+                    process = queue.pop(index)
                     child, log = self._start(process, env)
                     running[process.leader.index] = (process, child, log)
                     for job in process.jobs:

@@ -379,6 +379,44 @@ def test_seeds_of_one_config_share_a_process_spread_over_host_devices(tmp_path):
     assert [[job.run.seed for job in p.jobs] for p in resumed] == [[0, 2], [1]]
 
 
+class _RecordingRunner(launch.LocalRunner):
+    """Starts a half-second sleep for each process; records its name and the host devices in
+    use once it has started."""
+
+    def _next(self, queue, running):
+        self.running = running
+        return super()._next(queue, running)
+
+    def _start(self, process, env):
+        in_use = sum(p.devices for p, _, _ in self.running.values()) + process.devices
+        self.starts.append((process.name, in_use))
+        sleep = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(0.5)"])
+        return sleep, open(os.devnull, "w")
+
+
+def test_a_lone_seed_starts_beside_the_next_lone_one_not_beside_a_pair(tmp_path):
+    """Two seeds to a process over 2 host devices: the lone s2 of one model starts with the lone
+    s2 of the next, ahead of that model's pair, and a pair never runs beside anything."""
+    (tmp_path / "pairs.toml").write_text(PAIRS)
+    jobs = launch.make_jobs(load_experiment("pairs", "debug", paper_dir=tmp_path), tmp_path)
+    spread = _RecordingRunner(jobs, 1, 60.0, open(os.devnull, "w"), poll_s=0.05,
+                              seeds_per_process=2, spread=True)
+    queue = spread._queue()
+    assert [p.devices for p in queue] == [2, 1, 2, 1]
+    assert launch.next_to_start(queue[::2], 1, idle=False) is None
+    assert launch.next_to_start(queue[::2], 0, idle=True) == 0
+    spread.starts = []
+    spread.run()
+    assert spread.starts == [("bbs_basic/vsg/s{0,1}", 2), ("bbs_basic/vsg/s2", 1),
+                             ("bbs_basic/dreamerv2/s2", 2), ("bbs_basic/dreamerv2/s{0,1}", 2)]
+    in_order = _RecordingRunner(jobs, 1, 60.0, open(os.devnull, "w"), poll_s=0.05,
+                                seeds_per_process=2, spread=False)
+    in_order.starts = []
+    in_order.run()
+    assert in_order.starts == [("bbs_basic/vsg/s{0,1}", 1), ("bbs_basic/vsg/s2", 1),
+                               ("bbs_basic/dreamerv2/s{0,1}", 1), ("bbs_basic/dreamerv2/s2", 1)]
+
+
 def test_a_bad_seeds_per_process_is_an_error_naming_it(tmp_path, capsys):
     (tmp_path / "pairs.toml").write_text(PAIRS.replace("= 2", "= 0"))
     assert launch.main(["pairs", "--definitions", str(tmp_path), "--root", str(tmp_path)]) == 2
