@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from experiments.bench.timing import median_times
 from tests.support.fake_envs import FakeImageEnv
 from vsgjax.config import make_config
 from vsgjax.data.collect import DEFAULT_CHUNK, Collector, EnvBatch, make_env_batch
@@ -68,16 +69,6 @@ def standin_params(obs_shape, action_dim, key):
     keys = jax.random.split(key, len(shapes))
     return {name: jax.random.normal(k, shape) / np.sqrt(shape[0])
             for (name, shape), k in zip(shapes.items(), keys, strict=True)}
-
-
-def median_time(fn, repeats: int = REPEATS) -> float:
-    """Median wall seconds of ``fn()``."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def interleaved_times(fns: dict, repeats: int) -> dict[str, np.ndarray]:
@@ -188,7 +179,7 @@ def bare_env_rate(task: str, steps: int) -> tuple[float, float]:
                 env.reset()
 
     run()
-    seconds = median_time(run, repeats=3)
+    seconds = median_times(run, 3)[0]
     env.close()
     return steps / seconds, steps * env_cfg.action_repeat / seconds
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from experiments.bench.timing import median_times
 from vsgjax.envs.mjx import make_mjx_task
 
 RESULTS = Path(__file__).parent / "results" / "mjx.md"
@@ -28,16 +29,6 @@ NUM_ENVS = (1, 16, 256)
 ACTION_REPEAT = 2
 REPEATS, AGENT_STEPS = 5, 100
 SMOKE = {"repeats": 1, "agent_steps": 3, "num_envs": (1, 16), "tasks": ("mjx_pendulum_swingup",)}
-
-
-def median_time(fn, repeats: int) -> float:
-    """Median wall seconds of ``fn()``."""
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def mjx_rollout(task, num_envs: int, agent_steps: int):
@@ -64,8 +55,7 @@ def mjx_rate(name: str, num_envs: int, agent_steps: int, repeats: int) -> tuple[
     start = time.perf_counter()
     jax.block_until_ready(rollout(state, jax.random.PRNGKey(1)))
     first = time.perf_counter() - start
-    seconds = median_time(lambda: jax.block_until_ready(rollout(state, jax.random.PRNGKey(1))),
-                          repeats)
+    seconds = median_times(lambda: rollout(state, jax.random.PRNGKey(1)), repeats)[0]
     return num_envs * agent_steps * ACTION_REPEAT / seconds, first
 
 
@@ -90,9 +80,9 @@ def dm_control_rates(name: str, env_steps: int, repeats: int) -> tuple[float, fl
             env.physics.set_control(control)
             env.physics.step(n_sub_steps)
 
-    env_rate = env_steps / median_time(env_run, repeats)
+    env_rate = env_steps / median_times(env_run, repeats)[0]
     env.reset()
-    return env_steps / median_time(physics_run, repeats), env_rate
+    return env_steps / median_times(physics_run, repeats)[0], env_rate
 
 
 def load_average() -> str:
