@@ -24,7 +24,7 @@ from experiments.report.runs import run_name, warn
 from experiments.report.style import relative, step_label
 from experiments.report.summary import draw_summary, summary_data, summary_markdown
 from experiments.report.versus import draw_versus, versus_data, versus_markdown
-from experiments.spec import DEFAULT_ROOT, Experiment, Run
+from experiments.spec import DEFAULT_ROOT, PAPER_DIR, Experiment, Run
 from vsgjax.loop.rundir import SCORES_FILE
 
 
@@ -50,12 +50,13 @@ class Report:
 
 
 def build_report(experiment: Experiment, root: Path = DEFAULT_ROOT, out: Path | None = None,
-                 reference_dir: Path = REFERENCE_DIR, spacing: float | None = None) -> Report:
+                 reference_dir: Path = REFERENCE_DIR, spacing: float | None = None,
+                 definitions: Path = PAPER_DIR) -> Report:
     """Every figure of ``experiment`` into ``out`` (default ``root/<name>/report``), and
-    ``report.md`` linking them."""
+    ``report.md`` linking them; ``definitions``: where the experiments a panel names are."""
     out = Path(out) if out is not None else Path(root) / experiment.name / "report"
     out.mkdir(parents=True, exist_ok=True)
-    context = Context.create(experiment, root, reference_dir, spacing)
+    context = Context.create(experiment, root, reference_dir, spacing, definitions)
     names = [figure.get("kind", "?") for figure in experiment.figures]
     sections = []
     for index, figure in enumerate(experiment.figures):

@@ -36,7 +36,8 @@ def main(argv: list[str] | None = None) -> int:
     except (ExperimentError, OutputDirError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    report = build_report(experiment, args.root, args.out, spacing=args.bin)
+    report = build_report(experiment, args.root, args.out, spacing=args.bin,
+                          definitions=args.definitions)
     print(f"{report.markdown}: {len(report.sections)} figures, "
           f"{len(report.missing)} of {len(experiment.runs)} runs missing, "
           f"{len(report.problems)} warnings")

@@ -1,12 +1,14 @@
 """The ``panels`` figure and table: named comparison panels, each one task and the methods it
-compares (return against env steps, mean ± std over seeds), a table at given env steps with
-the gated methods' gate statistics, and for a panel with ``compare = [ours, baseline]`` a
-verdict at the last of those steps.
+compares (return against env steps, mean ± std over seeds), a table at given env steps with the
+gated methods' gate statistics, and for a panel with ``compare = [ours, baseline]`` a verdict
+at the last of those steps.
 
 A ``[[figures]]`` entry ``kind = "panels"`` has ``at`` (env steps) and ``[[figures.panels]]``
-tables ``{title, task, methods, compare}`` (``title`` defaults to the task, ``compare`` is
-optional). A value at a step is the evaluation nearest to it and at most one grid bin away (the
-bars' rule). The gate columns are the mean over seeds of each seed's last ``gates/open``,
+tables ``{title, task, methods, compare}`` (``title`` defaults to the task; a method written
+``<experiment>/<method>`` is another experiment's, e.g. ``cpu_proprio/DreamerV2`` for the fully
+observed baseline; ``compare`` is optional: one ``[ours, baseline]`` pair or a list of them). A
+value at a step is the evaluation nearest to it and at most one grid bin away (the bars' rule).
+The gate columns are the mean over seeds of each seed's last ``gates/open``,
 ``gates/closed_run_mean``, ``gates/prob_post_std`` and ``gates/kl`` in its ``metrics.jsonl``
 (VSG and SVSG log them; others read —), beside ``1 / open``, the closed run that independent
 gates would give.
@@ -34,7 +36,7 @@ from experiments.report.style import (
     step_label,
     write_missing_note,
 )
-from experiments.spec import Run
+from experiments.spec import ExperimentError, Run
 from vsgjax.loop.rundir import METRICS_FILE
 
 GATE_KEYS = ("gates/open", "gates/closed_run_mean", "gates/prob_post_std", "gates/kl")
@@ -50,7 +52,7 @@ class Panel:
     title: str
     task: str
     methods: list[str]
-    compare: tuple[str, str] | None  # (ours, baseline) for the verdict
+    compare: tuple[tuple[str, str], ...]  # (ours, baseline) pairs, a verdict each
 
 
 @dataclass
@@ -71,7 +73,7 @@ class PanelsData:
 
 def read_panels(entries, problems: list[str] | None = None) -> list[Panel]:
     """The panels of a figure entry's ``panels`` list; one without a task or methods is skipped
-    and a ``compare`` that is not two of its methods dropped, each with a warning."""
+    and a ``compare`` pair that is not two of its methods dropped, each with a warning."""
     panels = []
     for index, entry in enumerate(entries):
         task, methods = entry.get("task"), list(entry.get("methods", ()))
@@ -80,12 +82,17 @@ def read_panels(entries, problems: list[str] | None = None) -> list[Panel]:
             warn(f"panels: panel {index} ({title!r}) has no task or no methods; skipped",
                  problems)
             continue
-        compare = entry.get("compare")
-        if compare is not None and (len(compare) != 2 or not set(compare) <= set(methods)):
-            warn(f"panels: panel {title!r}: compare must be two of its methods, got "
-                 f"{compare!r}; no verdict", problems)
-            compare = None
-        panels.append(Panel(title, task, methods, tuple(compare) if compare else None))
+        pairs = entry.get("compare") or []
+        if pairs and isinstance(pairs[0], str):
+            pairs = [pairs]
+        compare = []
+        for pair in pairs:
+            if isinstance(pair, str) or len(pair) != 2 or not set(pair) <= set(methods):
+                warn(f"panels: panel {title!r}: compare must be two of its methods (or a list "
+                     f"of such pairs), got {pair!r}; no verdict", problems)
+                continue
+            compare.append(tuple(pair))
+        panels.append(Panel(title, task, methods, tuple(compare)))
     return panels
 
 
@@ -109,7 +116,7 @@ def gate_stats(context: Context, runs: list[Run]) -> dict[str, Stat]:
 
 def panels_data(context: Context, entries=(), at=()) -> PanelsData:
     """The seeds with scores and the gate statistics of every panel's task x method; a method
-    the experiment has no runs of on the panel's task is warned about."""
+    the experiment (or the one it names) has no runs of on the panel's task is warned about."""
     panels = read_panels(entries, context.records.problems)
     seeds, gates, missing = {}, {}, []
     for panel in panels:
@@ -117,11 +124,16 @@ def panels_data(context: Context, entries=(), at=()) -> PanelsData:
             key = (panel.task, method)
             if key in seeds:
                 continue
-            runs = context.runs_of(*key)
-            if not runs:
-                warn(f"panels: {panel.title!r}: the experiment has no runs of {method} on "
-                     f"{panel.task}", context.records.problems)
-            seeds[key], absent = context.ours(*key)
+            try:
+                runs = context.runs_of(*key)
+            except ExperimentError as error:
+                warn(f"panels: {panel.title!r}: {method}: {error}", context.records.problems)
+                runs = []
+            else:
+                if not runs:
+                    warn(f"panels: {panel.title!r}: the experiment has no runs of {method} on "
+                         f"{panel.task}", context.records.problems)
+            seeds[key], absent = context.scored(runs)
             gates[key] = gate_stats(context, runs)
             missing.extend(absent)
     return PanelsData(panels, seeds, gates, missing, context.spacing, [float(x) for x in at])
@@ -199,13 +211,13 @@ def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
             cell("gates/prob_post_std"), cell("gates/kl")]
 
 
-def verdict(data: PanelsData, panel: Panel) -> str:
+def verdict(data: PanelsData, panel: Panel, pair: tuple[str, str]) -> str:
     """At the last ``at`` step: ours − baseline, and whether ours is above the baseline by more
     than the baseline's std, within it, or below it by more ("not enough runs" below 2 seeds
     a side)."""
-    ours, baseline = panel.compare
+    ours, baseline = pair
     at = data.at[-1]
-    a, b = (stat_at(data, panel.task, m, at) for m in panel.compare)
+    a, b = (stat_at(data, panel.task, m, at) for m in pair)
     where = f"{panel.title}, at {step_label(at)} env steps"
     if a.n < 2 or b.n < 2:
         return (f"{where}: not enough runs to compare {ours} (n={a.n}) with {baseline} "
@@ -242,7 +254,8 @@ def panels_markdown(data: PanelsData) -> str:
              "over units, steps and sequences (near 0: the gates respond to nothing); and the "
              "last `gates/kl`, the gates' KL to Bernoulli(kappa) summed over units, which the "
              "sparsity loss holds at its free nats (`wm.gate_free`).")
-    verdicts = [verdict(data, panel) for panel in data.panels if panel.compare and data.at]
+    verdicts = [verdict(data, panel, pair) for panel in data.panels for pair in panel.compare
+                if data.at]
     if verdicts:
         text += "\n\n" + "\n".join(f"- {line}" for line in verdicts)
     return text

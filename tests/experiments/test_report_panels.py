@@ -164,6 +164,35 @@ def test_a_method_keeps_its_colour_in_every_panel(tmp_path):
     assert all(len(set(c.values())) == len(c) for c in colours)
 
 
+def test_a_panel_draws_another_experiments_runs_and_gives_a_verdict_per_pair(tmp_path):
+    """``cpu_proprio/DreamerV2`` is the fully observed baseline from that experiment's runs
+    under the same root; ``compare`` as a list gives one verdict a pair; an unknown
+    experiment is warned about and reads "no runs yet"."""
+    panels = [{"title": "observed", "task": CARTPOLE,
+               "methods": ["cpu_proprio/DreamerV2", "DreamerV2-hidevel", "VSG-hidevel",
+                           "nowhere/DreamerV2"],
+               "compare": [["VSG-hidevel", "DreamerV2-hidevel"],
+                           ["DreamerV2-hidevel", "cpu_proprio/DreamerV2"]]}]
+    experiment = experiment_with_panels(panels, at=(100_000,))
+    write_runs(experiment, tmp_path)
+    observed = runs_of(load_experiment("cpu_proprio"), CARTPOLE, "DreamerV2")
+    for run, y in zip(observed, (600, 700, 800), strict=True):
+        write_scores(run, tmp_path, (0, 0, y))
+    assert observed[0].logdir(tmp_path).parts[-4] == "cpu_proprio"
+    with pytest.warns(ReportWarning, match="unknown experiment 'nowhere'"):
+        built = report.build_report(experiment, tmp_path, tmp_path / "out")
+    markdown = built.sections[0].markdown
+    rows = table_rows(markdown)
+    assert rows[("observed", "cpu_proprio/DreamerV2")][0] == "700.0 ± 81.6 (n=3)"
+    assert rows[("observed", "nowhere/DreamerV2")][0] == "no runs yet"
+    verdicts = [line for line in markdown.splitlines() if line.startswith("- observed, at")]
+    assert [line.split(": ", 1)[1] for line in verdicts] == [
+        "VSG-hidevel − DreamerV2-hidevel = +150.0 (DreamerV2-hidevel's std 40.8): above the "
+        "baseline beyond one standard deviation.",
+        "DreamerV2-hidevel − cpu_proprio/DreamerV2 = -450.0 (cpu_proprio/DreamerV2's std "
+        "81.6): below the baseline by more than one std."]
+
+
 def test_a_report_without_any_runs_says_no_runs_yet(tmp_path):
     built = report.build_report(experiment_with_panels(), tmp_path, tmp_path / "out")
     rows = table_rows(built.sections[0].markdown)
@@ -181,7 +210,7 @@ def test_bad_panels_are_warned_about_not_fatal(tmp_path):
     context = Context.create(experiment, tmp_path)
     with pytest.warns(ReportWarning) as caught:
         data = panels_data(context, panels, [100_000])
-    assert [panel.title for panel in data.panels] == ["typo"] and data.panels[0].compare is None
+    assert [panel.title for panel in data.panels] == ["typo"] and data.panels[0].compare == ()
     assert len(caught) == 3  # the panel without a task, the compare, the unknown method
     assert "no runs of VSG-hidevl on mjx_cartpole_swingup" in context.records.problems[-1]
 
@@ -189,12 +218,20 @@ def test_bad_panels_are_warned_about_not_fatal(tmp_path):
 def test_cpu_memory_defines_its_panels():
     (figure,) = [f for f in load_experiment("cpu_memory").figures if f["kind"] == "panels"]
     assert figure["at"] == [20_000, 60_000, 100_000]
+    observed = [["cpu_proprio/VSG", "cpu_proprio/DreamerV2"],
+                ["DreamerV2-memoryless", "cpu_proprio/DreamerV2"]]
     assert [(p["task"], p.get("compare")) for p in figure["panels"]] == [
-        (CARTPOLE, ["VSG-hidevel", "DreamerV2-hidevel"]),
+        (CARTPOLE, [["VSG-hidevel", "DreamerV2-hidevel"],
+                    ["DreamerV2-hidevel-memoryless", "DreamerV2-hidevel"]]),
         (CARTPOLE, ["VSG-hidevel-kappa05", "DreamerV2-hidevel"]),
-        ("mjx_reacher_easy", ["VSG-target10", "DreamerV2-target10"]),
+        ("mjx_reacher_easy", [["VSG-target10", "DreamerV2-target10"],
+                              ["DreamerV2-target10-memoryless", "DreamerV2-target10"]]),
         (CARTPOLE, ["VSG-noise16", "DreamerV2-noise16"]),
-        (CARTPOLE, None), ("mjx_reacher_easy", None),
+        (CARTPOLE, observed), ("mjx_reacher_easy", observed),
         (CARTPOLE, ["SVSG", "DreamerV1"]), ("mjx_walker_walk", ["SVSG", "DreamerV1"])]
-    planned = {(run.task, run.method) for run in load_experiment("cpu_memory").runs}
-    assert all((p["task"], m) in planned for p in figure["panels"] for m in p["methods"])
+    planned = {("cpu_memory", run.task, run.method) for run in load_experiment("cpu_memory").runs}
+    planned |= {("cpu_proprio", run.task, run.method)
+                for run in load_experiment("cpu_proprio").runs}
+    assert all((experiment, p["task"], method) in planned
+               for p in figure["panels"] for m in p["methods"]
+               for experiment, method in [(*m.split("/"),) if "/" in m else ("cpu_memory", m)])
