@@ -1,7 +1,7 @@
 """The ``panels`` figure and table: named comparison panels, each one task and the methods it
 compares (return against env steps, mean ± std over seeds), a table at given env steps with the
-gated methods' gate statistics, and for a panel with ``compare = [ours, baseline]`` a verdict
-at the last of those steps.
+gated methods' gate statistics, and for each ``[ours, baseline]`` pair a panel compares a
+verdict at the last of those steps.
 
 A ``[[figures]]`` entry ``kind = "panels"`` has ``at`` (env steps) and ``[[figures.panels]]``
 tables ``{title, task, methods, compare}`` (``title`` defaults to the task; a method written
