@@ -126,13 +126,11 @@ def panels_data(context: Context, entries=(), at=()) -> PanelsData:
                 continue
             try:
                 runs = context.runs_of(*key)
+                why = f"the experiment has no runs of {method} on {panel.task}"
             except ExperimentError as error:
-                warn(f"panels: {panel.title!r}: {method}: {error}", context.records.problems)
-                runs = []
-            else:
-                if not runs:
-                    warn(f"panels: {panel.title!r}: the experiment has no runs of {method} on "
-                         f"{panel.task}", context.records.problems)
+                runs, why = [], f"{method}: {error}"
+            if not runs:
+                warn(f"panels: {panel.title!r}: {why}", context.records.problems)
             seeds[key], absent = context.scored(runs)
             gates[key] = gate_stats(context, runs)
             missing.extend(absent)
@@ -254,8 +252,8 @@ def panels_markdown(data: PanelsData) -> str:
              "over units, steps and sequences (near 0: the gates respond to nothing); and the "
              "last `gates/kl`, the gates' KL to Bernoulli(kappa) summed over units, which the "
              "sparsity loss holds at its free nats (`wm.gate_free`).")
-    verdicts = [verdict(data, panel, pair) for panel in data.panels for pair in panel.compare
-                if data.at]
+    verdicts = [verdict(data, panel, pair) for panel in data.panels
+                for pair in panel.compare] if data.at else []
     if verdicts:
         text += "\n\n" + "\n".join(f"- {line}" for line in verdicts)
     return text
