@@ -1,6 +1,6 @@
 """Partially observed and noisy variants of the MJX tasks (vsgjax/envs/mjx/variants.py), their
 config keys (env.flicker, env.hide, env.show_keys, env.show_steps, env.noise_dims,
-env.noise_scale) and the memoryless control (ac.memoryless).
+env.noise_scale) and the memoryless control (ac.memoryless, ac.memoryless_starts).
 
 Every rollout is pendulum swingup (the quickest task to compile): ENVS envs for STEPS agent
 steps, action repeat 1, one jitted program per task (cached), each compared with the plain
@@ -195,6 +195,7 @@ def test_the_host_loops_vector_env_sees_the_variant_observation():
     (["env.noise_scale=-1"], "config key 'env.noise_scale' got -1.0; valid: >= 0"),
     (["env.show_keys=velocity"], "env.show_steps=0 with env.show_keys='velocity'; valid: >= 1"),
     (["env.show_steps=3"], "env.show_steps=3 without env.show_keys; valid: env.show_steps=0"),
+    (["ac.memoryless_starts=true"], "ac.memoryless_starts=true without ac.memoryless; valid: "),
 ])
 def test_a_bad_option_is_refused_naming_the_value_and_what_is_valid(overrides, message):
     with pytest.raises(ConfigError) as error:
@@ -268,4 +269,40 @@ def test_a_memoryless_agent_acts_from_the_observation_alone():
             np.testing.assert_array_equal(got, want)
     carried = step(plain, carries[0], obs)  # without the flag the carry matters
     assert any((a != b).any() for a, b in zip(leaves(carried[0][0]), leaves(fresh[0][0]),
+                                              strict=True))
+
+
+def test_memoryless_starts_imagine_from_the_states_the_control_acts_from():
+    """The imagination starts are the acting posteriors of each batch step alone; the world
+    model's update is the plain one and the actor's is not."""
+    config = make_config(TASK, "dreamerv2", "debug", ["ac.memoryless=true"])
+    acting = DreamerAgent(config, {VECTOR_KEY: (3,)}, 1, False)
+    starting = DreamerAgent(dataclasses.replace(
+        config, ac=dataclasses.replace(config.ac, memoryless_starts=True)), {VECTOR_KEY: (3,)},
+        1, False)
+    state = acting.init(jax.random.PRNGKey(0))
+    rng = np.random.default_rng(1)
+    length = 6
+    batch = {VECTOR_KEY: rng.normal(size=(2, length, 3)).astype(np.float32),
+             "action": rng.uniform(-1, 1, (2, length, 1)).astype(np.float32),
+             "reward": rng.normal(size=(2, length)).astype(np.float32),
+             "is_first": np.eye(1, length, dtype=bool).repeat(2, 0),
+             "is_terminal": np.zeros((2, length), bool)}
+    wm = state.params["wm"]
+    starts = jax.device_get(starting._posteriors_alone(wm, batch, jax.random.PRNGKey(2)))
+    for t in (0, 3):
+        obs = {VECTOR_KEY: batch[VECTOR_KEY][:, t], "is_first": np.zeros(2, bool)}
+        (posts, _), _ = acting.policy_step(state.params, acting.initial_carry(2), obs,
+                                           jax.random.PRNGKey(3), mode="eval")
+        for got, want in zip(jax.tree.leaves(jax.device_get(posts.dist)),
+                             jax.tree.leaves(starts.dist), strict=True):
+            np.testing.assert_allclose(got, want[:, t], atol=1e-6)
+
+    plain, _ = acting.train_step(state, batch, jax.random.PRNGKey(4))
+    trained, _ = starting.train_step(state, batch, jax.random.PRNGKey(4))
+    for a, b in zip(jax.tree.leaves(plain.params["wm"]), jax.tree.leaves(trained.params["wm"]),
+                    strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert any((a != b).any() for a, b in zip(jax.tree.leaves(plain.params["actor"]),
+                                              jax.tree.leaves(trained.params["actor"]),
                                               strict=True))

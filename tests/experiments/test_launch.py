@@ -532,7 +532,8 @@ def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
         run.config()
     assert seeds[("mjx_cartpole_swingup", "VSG-hidevel")] == [0, 1, 2]
     assert seeds[("mjx_cartpole_swingup", "DreamerV2-hidevel-memoryless")] == [0, 1]
-    assert seeds[("mjx_reacher_easy", "DreamerV2-memoryless")] == [0, 1]
+    assert ("mjx_reacher_easy", "DreamerV2-memoryless") not in seeds
+    assert seeds[("mjx_reacher_easy", "DreamerV2-memoryless-starts")] == [0, 1]
     assert seeds[("mjx_cartpole_swingup", "VSG-hidevel-kappa05")] == [0, 1]
     assert seeds[("mjx_walker_walk", "SVSG")] == [0, 1, 2]
     tuned = {run.method: run.config().wm for run in experiment.runs if run.seed == 0
@@ -540,5 +541,10 @@ def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
     assert {method: (wm.gate_kappa, wm.kl_scale) for method, wm in tuned.items()} == {
         "VSG-hidevel": (0.4, 1.0), "VSG-hidevel-kappa05": (0.5, 1.0),
         "VSG-hidevel-kappa03": (0.3, 1.0)}
-    assert len(experiment.runs) == 3 * 2 * 3 + 2 * 4 + 2 * 2 + 2 * 2 * 3
-    assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 4 + 2 + 2 * 2
+    controls = {run.method: run.config().ac for run in experiment.runs
+                if run.seed == 0 and "memoryless" in run.method}
+    assert {method: (ac.memoryless, ac.memoryless_starts) for method, ac in controls.items()
+            if method.startswith("DreamerV2-memoryless")} == {
+        "DreamerV2-memoryless": (True, False), "DreamerV2-memoryless-starts": (True, True)}
+    assert len(experiment.runs) == 3 * 2 * 3 + 2 * 3 + 2 * 4 + 2 * 2 + 2 * 2 * 3
+    assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 3 + 4 + 2 + 2 * 2

@@ -109,6 +109,10 @@ def check_config(config: Config) -> None:
     _check_atari_options(config)
     _check_variant_options(config)
     _check_background_options(config)
+    if config.ac.memoryless_starts and not config.ac.memoryless:
+        raise ConfigError("ac.memoryless_starts=true without ac.memoryless; valid: "
+                          "ac.memoryless=true with it (the control that acts and imagines from "
+                          "each observation alone), or ac.memoryless_starts=false")
 
 
 def numeric_values(config: Config) -> dict[str, float]:

@@ -110,6 +110,9 @@ class BehaviourConfig:
     clip: float = 100.0
     weight_decay: float = 1e-6
     memoryless: bool = False  # act from each observation alone (no carried latent state)
+    # with memoryless: imagination also starts from each observation's posterior alone, so the
+    # actor trains on the states it acts from
+    memoryless_starts: bool = False
 
 
 @dataclass(frozen=True)

@@ -146,6 +146,8 @@ class DreamerAgent:
         slow_critic = params["slow_critic"]
         if behaviour.release:
             slow_critic = bhv.update_slow_critic(params["critic"], slow_critic, state.step, every)
+        if self.config.ac.memoryless_starts:
+            posts = self._posteriors_alone(wm_params, batch, jax.random.fold_in(key, 2))
         starts, start_continue = bhv.start_states(posts, batch["is_terminal"], behaviour,
                                                   drop_last=self.config.wm.discount_head)
         if self.config.ac.starts:
@@ -175,6 +177,15 @@ class DreamerAgent:
         new_params = dict(params, wm=wm_params, actor=actor, critic=critic,
                           slow_critic=slow_critic)
         return AgentState(new_params, opt, state.step + 1), metrics
+
+    def _posteriors_alone(self, wm_params: dict, batch: dict, key: jax.Array):
+        """:func:`posteriors_alone` of every step of the [B, T] batch (the memoryless
+        control's imagination starts)."""
+        embeds = self.world_model.encode(wm_params, batch)
+        alone = functools.partial(posteriors_alone, self.world_model.dynamics,
+                                  wm_params["dynamics"], action_dim=self.action_dim)
+        keys = jax.random.split(key, embeds.shape[0])
+        return jax.vmap(lambda e, k: alone(e, key=k))(embeds, keys)
 
     # --- analysis ------------------------------------------------------------------------------
 
@@ -226,19 +237,36 @@ class DreamerAgent:
         dyn, states, prev_actions = self.world_model.dynamics, *carry
         state_key, action_key = jax.random.split(key)
         embeds = self.world_model.encode(params["wm"], obs)
-        is_first = obs["is_first"]
-        if self.config.ac.memoryless:
-            is_first = jnp.ones_like(is_first)
 
         def posterior(state, action, is_first, embed, step_key):
             state, action = dyn.reset(state, action, is_first)
             return dyn.obs_step(params["wm"]["dynamics"], state, action, embed, step_key)[0]
 
-        keys = jax.random.split(state_key, embeds.shape[0])
-        posts = jax.vmap(posterior)(states, prev_actions, is_first, embeds, keys)
+        if self.config.ac.memoryless:
+            posts = posteriors_alone(dyn, params["wm"]["dynamics"], embeds, self.action_dim,
+                                     state_key)
+        else:
+            keys = jax.random.split(state_key, embeds.shape[0])
+            posts = jax.vmap(posterior)(states, prev_actions, obs["is_first"], embeds, keys)
         action = self.behaviour.act(params["actor"], jax.vmap(dyn.feat)(posts), action_key, mode)
         action = jax.lax.stop_gradient(action)
         return (posts, action), action
+
+
+def posteriors_alone(dynamics, dyn_params: dict, embeds: jax.Array, action_dim: int,
+                     key: jax.Array):
+    """The posterior of each embedding [N, E] alone: one posterior step from the all-zero
+    initial state and a zero previous action, as at an episode's first step. The memoryless
+    control acts from these (``ac.memoryless``) and, with ``ac.memoryless_starts``, imagines
+    from them."""
+    initial = jax.tree.map(lambda x: jnp.broadcast_to(x, (embeds.shape[0],) + x.shape),
+                           dynamics.initial())
+    no_action = jnp.zeros(action_dim, jnp.float32)
+
+    def posterior(state, embed, step_key):
+        return dynamics.obs_step(dyn_params, state, no_action, embed, step_key)[0]
+
+    return jax.vmap(posterior)(initial, embeds, jax.random.split(key, embeds.shape[0]))
 
 
 def _apply(optimizer: optax.GradientTransformation, grads, opt_state, params):
