@@ -522,9 +522,9 @@ def test_a_run_dir_with_another_config_is_reported_and_left_alone(definitions, t
 
 
 def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
-    """``cpu_memory``: 3 seeds per variant model, 2 for the memoryless controls and the
-    tuning trial, 3 for SVSG and DreamerV1; every run's config (variant options included)
-    resolves."""
+    """``cpu_memory``: 3 seeds per variant model and for the DrQ-v2 control, 2 for the
+    DreamerV2 memoryless controls and the tuning trial, 3 for SVSG and DreamerV1; every run's
+    config (variant options included) resolves."""
     experiment = load_experiment("cpu_memory")
     seeds = {}
     for run in experiment.runs:
@@ -533,7 +533,8 @@ def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
     assert seeds[("mjx_cartpole_swingup", "VSG-hidevel")] == [0, 1, 2]
     assert seeds[("mjx_cartpole_swingup", "DreamerV2-hidevel-memoryless")] == [0, 1]
     assert ("mjx_reacher_easy", "DreamerV2-memoryless") not in seeds
-    assert seeds[("mjx_reacher_easy", "DreamerV2-memoryless-starts")] == [0, 1]
+    assert seeds[("mjx_cartpole_swingup", "DreamerV2-memoryless-starts")] == [0, 1]
+    assert seeds[("mjx_reacher_easy", "DrQ-v2-target10")] == [0, 1, 2]
     assert seeds[("mjx_cartpole_swingup", "VSG-hidevel-kappa05")] == [0, 1]
     assert seeds[("mjx_walker_walk", "SVSG")] == [0, 1, 2]
     tuned = {run.method: run.config().wm for run in experiment.runs if run.seed == 0
@@ -546,5 +547,5 @@ def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
     assert {method: (ac.memoryless, ac.memoryless_starts) for method, ac in controls.items()
             if method.startswith("DreamerV2-memoryless")} == {
         "DreamerV2-memoryless": (True, False), "DreamerV2-memoryless-starts": (True, True)}
-    assert len(experiment.runs) == 3 * 2 * 3 + 2 * 3 + 2 * 4 + 2 * 2 + 2 * 2 * 3
-    assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 3 + 4 + 2 + 2 * 2
+    assert len(experiment.runs) == 3 * 2 * 3 + 2 * 4 + 3 * 2 + 2 * 2 + 2 * 2 * 3
+    assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 4 + 2 + 2 + 2 * 2

@@ -219,18 +219,20 @@ def test_cpu_memory_defines_its_panels():
     (figure,) = [f for f in load_experiment("cpu_memory").figures if f["kind"] == "panels"]
     assert figure["at"] == [20_000, 60_000, 100_000]
     def controls(variant: str, versus: str) -> list:
-        return [[f"DreamerV2{variant}-memoryless{kind}", versus] for kind in ("-starts", "")]
+        return [[f"DrQ-v2-{variant}", versus], [f"DreamerV2-{variant}-memoryless", versus]]
 
-    versus_dv2 = ["cpu_proprio/VSG", "cpu_proprio/DreamerV2"]
+    observed = [["cpu_proprio/VSG", "cpu_proprio/DreamerV2"],
+                ["cpu_proprio/DrQ-v2", "cpu_proprio/DreamerV2"]]
     assert [(p["task"], p.get("compare")) for p in figure["panels"]] == [
         (CARTPOLE, [["VSG-hidevel", "DreamerV2-hidevel"],
-                    *controls("-hidevel", "DreamerV2-hidevel")]),
+                    *controls("hidevel", "DreamerV2-hidevel")]),
         (CARTPOLE, ["VSG-hidevel-kappa05", "DreamerV2-hidevel"]),
         ("mjx_reacher_easy", [["VSG-target10", "DreamerV2-target10"],
-                              *controls("-target10", "DreamerV2-target10")]),
+                              *controls("target10", "DreamerV2-target10")]),
         (CARTPOLE, ["VSG-noise16", "DreamerV2-noise16"]),
-        (CARTPOLE, [versus_dv2, *controls("", "cpu_proprio/DreamerV2")]),
-        ("mjx_reacher_easy", [versus_dv2, controls("", "cpu_proprio/DreamerV2")[0]]),
+        (CARTPOLE, [*observed, *[[f"DreamerV2-memoryless{kind}", "cpu_proprio/DreamerV2"]
+                                 for kind in ("-starts", "")]]),
+        ("mjx_reacher_easy", observed),
         (CARTPOLE, ["SVSG", "DreamerV1"]), ("mjx_walker_walk", ["SVSG", "DreamerV1"])]
     planned = {("cpu_memory", run.task, run.method) for run in load_experiment("cpu_memory").runs}
     planned |= {("cpu_proprio", run.task, run.method)
