@@ -7,8 +7,9 @@ Each run's ``open_loop.jsonl`` (``vsgjax/loop/rundir.py``: one line per evaluati
 ``k`` after 15 observed steps) gives one evaluation per seed: its last, or with ``at`` the one
 nearest to that env step and at most one grid bin away (the bars' rule). Per imagined step the
 mean and std are over the seeds that have a number there (a seed evaluated on short episodes
-has fewer steps). A run without the file (an agent without a world model, a run not started)
-or without an evaluation near ``at`` is listed as missing.
+has fewer steps). A run without the file (a run not started) or without an evaluation near
+``at`` is listed as missing; an agent without a world model (DrQ-v2) has neither a line nor a
+row.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from experiments.report.style import (
 )
 from experiments.spec import Run
 from vsgjax.loop.rundir import OPEN_LOOP_ERRORS, OPEN_LOOP_FILE, OPEN_LOOP_STEPS
+from vsgjax.registry.agents import dreamer_models
 
 PANELS = {"obs_mse": "observations", "reward_mse": "rewards"}  # panel titles per quantity
 
@@ -120,6 +122,8 @@ def open_loop_data(context: Context, at: float | None = None) -> OpenLoopData:
         for method in experiment.methods:
             chosen = []
             for run in context.runs_of(task, method):
+                if run.model not in dreamer_models():
+                    continue  # no world model, nothing imagined
                 path = run.logdir(context.records.root) / OPEN_LOOP_FILE
                 records = read_open_loop(path, context.records.problems) if path.exists() \
                     else []
