@@ -42,8 +42,8 @@ def squared_errors(model: WorldModel, wm_params: dict, episode: dict,
     target = model.vector_input(obs)
     errors = {}
     for name, states in zip(STATES, (carried, alone), strict=True):
-        means = model.decode_vectors(wm_params, jax.vmap(model.dynamics.feat)(states))
-        predicted = jnp.concatenate([means[k] for k in model.vector_keys], -1)
+        predicted = model.vector_input(
+            model.decode_vectors(wm_params, jax.vmap(model.dynamics.feat)(states)))
         errors[name] = np.asarray((predicted - target) ** 2)
     return errors
 
@@ -66,8 +66,7 @@ def unexplained_fractions(run, episodes: int, seed: int = 0) -> dict[str, np.nda
         for name, error in squared_errors(model, params, episode,
                                           jax.random.PRNGKey(seed + index)).items():
             errors[name].append(error[later])
-        vector = np.concatenate([episode[k] for k in model.vector_keys], -1)
-        targets.append(vector[later])
+        targets.append(np.asarray(model.vector_input(episode))[later])
     variance = np.concatenate(targets).var(0)
     out = {name: np.concatenate(parts).mean(0) / variance for name, parts in errors.items()}
     return {**out, "variance": variance}

@@ -117,12 +117,13 @@ def open_loop_data(context: Context, at: float | None = None) -> OpenLoopData:
     at = None if at is None else float(at)
     lines: dict[str, dict[str, dict[str, ErrorLine]]] = {}
     missing, why = [], {}
+    world_models = dreamer_models()
     for task in experiment.tasks:
         lines[task] = {name: {} for name in OPEN_LOOP_ERRORS}
         for method in experiment.methods:
             chosen = []
             for run in context.runs_of(task, method):
-                if run.model not in dreamer_models():
+                if run.model not in world_models:
                     continue  # no world model, nothing imagined
                 path = run.logdir(context.records.root) / OPEN_LOOP_FILE
                 records = read_open_loop(path, context.records.problems) if path.exists() \

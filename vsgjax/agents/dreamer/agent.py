@@ -181,11 +181,10 @@ class DreamerAgent:
     def _posteriors_alone(self, wm_params: dict, batch: dict, key: jax.Array):
         """:func:`posteriors_alone` of every step of the [B, T] batch (the memoryless
         control's imagination starts)."""
-        embeds = self.world_model.encode(wm_params, batch)
-        alone = functools.partial(posteriors_alone, self.world_model.dynamics,
-                                  wm_params["dynamics"], action_dim=self.action_dim)
+        dyn, embeds = self.world_model.dynamics, self.world_model.encode(wm_params, batch)
         keys = jax.random.split(key, embeds.shape[0])
-        return jax.vmap(lambda e, k: alone(e, key=k))(embeds, keys)
+        return jax.vmap(lambda e, k: posteriors_alone(dyn, wm_params["dynamics"], e,
+                                                      self.action_dim, k))(embeds, keys)
 
     # --- analysis ------------------------------------------------------------------------------
 
