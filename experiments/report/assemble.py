@@ -107,7 +107,8 @@ def section(context: Context, kind: str, name: str, figure: dict, out: Path) -> 
         data = open_loop_data(context, figure.get("at"))
         return Section(kind, name, data, draw_open_loop(data, stem), open_loop_markdown(data))
     if kind == "panels":
-        data = panels_data(context, figure.get("panels", ()), figure.get("at", ()))
+        data = panels_data(context, figure.get("panels", ()), figure.get("at", ()),
+                           figure.get("memory_rule", ()))
         return Section(kind, name, data, draw_panels(data, stem), panels_markdown(data))
     if kind == "rollouts":
         data = rollouts_data(context)

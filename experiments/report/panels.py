@@ -1,7 +1,8 @@
 """The ``panels`` figure and table: named comparison panels, each one task and the methods it
 compares (return against env steps, mean ± std over seeds), a table at given env steps with the
 gated methods' gate statistics, and for each ``[ours, baseline]`` pair a panel compares a
-verdict at the last of those steps.
+verdict at the last of those steps; each ``[[figures.memory_rule]]`` table adds the control
+rule's verdict for one variant (``experiments/report/memory_rule.py``).
 
 A ``[[figures]]`` entry ``kind = "panels"`` has ``at`` (env steps) and ``[[figures.panels]]``
 tables ``{title, task, methods, compare}`` (``title`` defaults to the task; a method written
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import matplotlib.ticker
@@ -25,6 +27,7 @@ from matplotlib.figure import Figure
 
 from experiments.report.binning import Stat, binned, seed_stats, value_near
 from experiments.report.context import Context
+from experiments.report.memory_rule import MemoryRule, memory_rule_line, read_memory_rules
 from experiments.report.runs import Curve, is_number, read_jsonl, warn
 from experiments.report.style import (
     colour,
@@ -63,6 +66,7 @@ class PanelsData:
     missing: list[Run]
     spacing: float
     at: list[float]
+    rules: list[MemoryRule]
 
     @property
     def methods(self) -> list[str]:
@@ -114,27 +118,31 @@ def gate_stats(context: Context, runs: list[Run]) -> dict[str, Stat]:
     return {key: Stat.of(value.get(key) for value in values) for key in GATE_KEYS}
 
 
-def panels_data(context: Context, entries=(), at=()) -> PanelsData:
-    """The seeds with scores and the gate statistics of every panel's task x method; a method
-    the experiment (or the one it names) has no runs of on the panel's task is warned about."""
+def panels_data(context: Context, entries=(), at=(), rule_entries=()) -> PanelsData:
+    """The seeds with scores and the gate statistics of every panel's and memory rule's task x
+    method; a method the experiment (or the one it names) has no runs of on that task is
+    warned about."""
     panels = read_panels(entries, context.records.problems)
+    rules = read_memory_rules(rule_entries, context.records.problems)
+    wanted = [(panel.title, panel.task, method) for panel in panels for method in panel.methods]
+    wanted += [(rule.title, rule.task, method) for rule in rules for method in rule.methods]
     seeds, gates, missing = {}, {}, []
-    for panel in panels:
-        for method in panel.methods:
-            key = (panel.task, method)
-            if key in seeds:
-                continue
-            try:
-                runs = context.runs_of(*key)
-                why = f"the experiment has no runs of {method} on {panel.task}"
-            except ExperimentError as error:
-                runs, why = [], f"{method}: {error}"
-            if not runs:
-                warn(f"panels: {panel.title!r}: {why}", context.records.problems)
-            seeds[key], absent = context.scored(runs)
-            gates[key] = gate_stats(context, runs)
-            missing.extend(absent)
-    return PanelsData(panels, seeds, gates, missing, context.spacing, [float(x) for x in at])
+    for title, task, method in wanted:
+        key = (task, method)
+        if key in seeds:
+            continue
+        try:
+            runs = context.runs_of(*key)
+            why = f"the experiment has no runs of {method} on {task}"
+        except ExperimentError as error:
+            runs, why = [], f"{method}: {error}"
+        if not runs:
+            warn(f"panels: {title!r}: {why}", context.records.problems)
+        seeds[key], absent = context.scored(runs)
+        gates[key] = gate_stats(context, runs)
+        missing.extend(absent)
+    return PanelsData(panels, seeds, gates, missing, context.spacing, [float(x) for x in at],
+                      rules)
 
 
 def draw_panel(ax, panel: Panel, data: PanelsData) -> None:
@@ -233,7 +241,7 @@ def verdict(data: PanelsData, panel: Panel, pair: tuple[str, str]) -> str:
 
 def panels_markdown(data: PanelsData) -> str:
     """Per panel x method: the values at the ``at`` steps and the gate columns; then the
-    verdict of every panel with ``compare``."""
+    verdict of every panel with ``compare`` and of every memory rule."""
     header = ["panel", "method"] + [f"{step_label(a)} env steps" for a in data.at] + [
         "gate open fraction", "closed-run length (steps)", "if independent (1 / open)",
         "gate probability std", "gate KL (nats, Σ units)"]
@@ -252,8 +260,12 @@ def panels_markdown(data: PanelsData) -> str:
              "over units, steps and sequences (near 0: the gates respond to nothing); and the "
              "last `gates/kl`, the gates' KL to Bernoulli(kappa) summed over units, which the "
              "sparsity loss holds at its free nats (`wm.gate_free`).")
-    verdicts = [verdict(data, panel, pair) for panel in data.panels
-                for pair in panel.compare] if data.at else []
+    verdicts = []
+    if data.at:
+        last = data.at[-1]
+        verdicts = [verdict(data, panel, pair) for panel in data.panels for pair in panel.compare]
+        verdicts += [memory_rule_line(rule, partial(stat_at, data, at=last), last)
+                     for rule in data.rules]
     if verdicts:
         text += "\n\n" + "\n".join(f"- {line}" for line in verdicts)
     return text

@@ -522,7 +522,7 @@ def test_a_run_dir_with_another_config_is_reported_and_left_alone(definitions, t
 
 
 def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
-    """``cpu_memory``: 3 seeds per variant model and for the DrQ-v2 control, 2 for the
+    """``cpu_memory``: 3 seeds per variant model and for the DrQ-v2 controls, 2 for the
     DreamerV2 memoryless controls and the tuning trial, 3 for SVSG and DreamerV1; every run's
     config (variant options included) resolves."""
     experiment = load_experiment("cpu_memory")
@@ -547,5 +547,10 @@ def test_a_group_caps_the_seeds_and_the_memory_experiment_resolves():
     assert {method: (ac.memoryless, ac.memoryless_starts) for method, ac in controls.items()
             if method.startswith("DreamerV2-memoryless")} == {
         "DreamerV2-memoryless": (True, False), "DreamerV2-memoryless-starts": (True, True)}
-    assert len(experiment.runs) == 3 * 2 * 3 + 2 * 4 + 3 * 2 + 2 * 2 + 2 * 2 * 3
-    assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 4 + 2 + 2 + 2 * 2
+    posonce = {run.method: run.config().env for run in experiment.runs
+               if run.method.endswith("-posonce")}
+    assert set(posonce) == {"VSG-posonce", "DreamerV2-posonce", "DrQ-v2-posonce"}
+    assert {(env.show_keys, env.show_steps) for env in posonce.values()} == {("position", 1)}
+    assert seeds[("mjx_cartpole_swingup", "DrQ-v2-posonce")] == [0, 1, 2]
+    assert len(experiment.runs) == 3 * 2 * 3 + 3 * 3 + 2 * 4 + 3 * 2 + 2 * 2 + 2 * 2 * 3
+    assert len(load_experiment("cpu_memory", seeds=1).runs) == 3 * 2 + 3 + 4 + 2 + 2 + 2 * 2

@@ -215,6 +215,56 @@ def test_bad_panels_are_warned_about_not_fatal(tmp_path):
     assert "no runs of VSG-hidevl on mjx_cartpole_swingup" in context.records.problems[-1]
 
 
+def rule(title, agent, control, agent_full, control_full, task=CARTPOLE):
+    return {"title": title, "task": task, "agent": agent, "control": control,
+            "agent_full": agent_full, "control_full": control_full}
+
+
+def test_the_memory_rule_passes_fails_flags_a_small_margin_and_waits_for_runs(tmp_path):
+    """The loss of the control to the agent on the variant against the same loss fully
+    observed: the margin, its standard error, the verdict; a rule lacking a method is warned
+    about and skipped."""
+    rules = [rule("passes", "DreamerV2-hidevel", "DrQ-v2-hidevel", "cpu_proprio/DreamerV2",
+                  "cpu_proprio/DrQ-v2"),
+             rule("weak", "DreamerV2-hidevel", "DrQ-v2-hidevel", "cpu_proprio/DrQ-v2",
+                  "cpu_proprio/DreamerV2"),
+             rule("fails", "DreamerV2-hidevel", "DrQ-v2-hidevel", "cpu_proprio/DreamerV2",
+                  "cpu_proprio/VSG"),
+             rule("waits", "SVSG", "DreamerV1", "cpu_proprio/DreamerV2", "cpu_proprio/DrQ-v2",
+                  task="mjx_walker_walk"),
+             {"title": "lacking", "task": CARTPOLE, "agent": "DreamerV2-hidevel"}]
+    experiment = experiment_with_panels(PANELS[:1], at=(100_000,))
+    experiment = dataclasses.replace(experiment, figures=(
+        experiment.figures[0] | {"memory_rule": rules},))
+    write_runs(experiment, tmp_path)  # DreamerV2-hidevel: 250 ± 40.8 (3)
+    for run, y in zip(runs_of(experiment, CARTPOLE, "DrQ-v2-hidevel"), (100, 110, 120),
+                      strict=True):
+        write_scores(run, tmp_path, (0, 0, y))
+    proprio = load_experiment("cpu_proprio")
+    for method, ys in {"DreamerV2": (600, 700, 800), "DrQ-v2": (750, 800, 850),
+                       "VSG": (90, 100, 110)}.items():
+        for run, y in zip(runs_of(proprio, CARTPOLE, method), ys, strict=True):
+            write_scores(run, tmp_path, (0, 0, y))
+    with pytest.warns(ReportWarning, match="memory_rule 4 \\('lacking'\\) lacks control, "
+                                           "agent_full, control_full"):
+        built = report.build_report(experiment, tmp_path, tmp_path / "out")
+    lines = {line.split(",", 1)[0][2:]: line for line in built.sections[0].markdown.splitlines()
+             if line.startswith("- ") and "rule" in line}
+    assert set(lines) == {"passes", "weak", "fails", "waits"}
+    # standard error: sqrt((40.82² + 8.165² + 81.65² + 40.82²) / 3) = 57.9
+    assert lines["passes"].endswith(
+        "DreamerV2-hidevel − DrQ-v2-hidevel = +140.0 on the variant, cpu_proprio/DreamerV2 − "
+        "cpu_proprio/DrQ-v2 = -100.0 fully observed; margin +240.0 (standard error 57.9): the "
+        "control loses more on the variant: **it tests memory**.")
+    assert lines["weak"].endswith("margin +40.0 (standard error 57.9): the control loses more "
+                                  "on the variant: **it tests memory** (by less than the "
+                                  "standard error).")
+    assert "= +600.0 fully observed; margin -460.0" in lines["fails"]
+    assert lines["fails"].endswith("**it does not test memory**.")
+    assert lines["waits"].endswith("not enough runs for the control rule (SVSG n=1, DreamerV1 "
+                                   "n=3, cpu_proprio/DreamerV2 n=0, cpu_proprio/DrQ-v2 n=0).")
+
+
 def test_cpu_memory_defines_its_panels():
     (figure,) = [f for f in load_experiment("cpu_memory").figures if f["kind"] == "panels"]
     assert figure["at"] == [20_000, 60_000, 100_000]
@@ -229,6 +279,8 @@ def test_cpu_memory_defines_its_panels():
         (CARTPOLE, ["VSG-hidevel-kappa05", "DreamerV2-hidevel"]),
         ("mjx_reacher_easy", [["VSG-target10", "DreamerV2-target10"],
                               *controls("target10", "DreamerV2-target10")]),
+        (CARTPOLE, [["VSG-posonce", "DreamerV2-posonce"],
+                    ["DrQ-v2-posonce", "DreamerV2-posonce"]]),
         (CARTPOLE, ["VSG-noise16", "DreamerV2-noise16"]),
         (CARTPOLE, [*observed, *[[f"DreamerV2-memoryless{kind}", "cpu_proprio/DreamerV2"]
                                  for kind in ("-starts", "")]]),
@@ -237,6 +289,15 @@ def test_cpu_memory_defines_its_panels():
     planned = {("cpu_memory", run.task, run.method) for run in load_experiment("cpu_memory").runs}
     planned |= {("cpu_proprio", run.task, run.method)
                 for run in load_experiment("cpu_proprio").runs}
-    assert all((experiment, p["task"], method) in planned
-               for p in figure["panels"] for m in p["methods"]
+    rules = figure["memory_rule"]
+    assert [(r["task"], r["agent"], r["control"]) for r in rules] == [
+        (CARTPOLE, "DreamerV2-hidevel", "DrQ-v2-hidevel"),
+        ("mjx_reacher_easy", "DreamerV2-target10", "DrQ-v2-target10"),
+        (CARTPOLE, "DreamerV2-posonce", "DrQ-v2-posonce")]
+    assert all((r["agent_full"], r["control_full"]) == ("cpu_proprio/DreamerV2",
+                                                        "cpu_proprio/DrQ-v2") for r in rules)
+    used = [(p["task"], m) for p in figure["panels"] for m in p["methods"]]
+    used += [(r["task"], r[role]) for r in rules for role in ("agent", "control", "agent_full",
+                                                               "control_full")]
+    assert all((experiment, task, method) in planned for task, m in used
                for experiment, method in [(*m.split("/"),) if "/" in m else ("cpu_memory", m)])

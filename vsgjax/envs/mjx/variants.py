@@ -10,12 +10,11 @@ episode is the plain task's episode from the same reset key, observed differentl
 * ``show_keys`` for ``show_steps`` = k (``env.show_keys``, ``env.show_steps``): these keys are
   the task's own at agent steps t = 0, ..., k - 1 of an episode, where t = 0 is the reset
   observation and t = i the observation after the i-th action, and zero from t = k on. The
-  task this is made for is reacher (``mjx_reacher_easy``, ``env.show_keys=to_target``): its
-  target is the one per-episode quantity of the suite that nothing else in the observation
-  reveals (the target geom takes no part in the dynamics; ``position`` and ``velocity`` are
-  the arm's), so once ``to_target`` is gone, reaching needs the target remembered (target =
-  ``to_target`` at a shown step + the finger's position then, which the joint angles give).
-  Hiding a key of the other tasks (``velocity``) asks for a memory of a few steps only (a
+  suite's one per-episode goal that nothing else reveals is reacher's target
+  (``mjx_reacher_easy``, ``env.show_keys=to_target``: the target geom takes no part in the
+  dynamics; ``position`` and ``velocity`` are the arm's). Showing a task's ``position`` once
+  (``env.show_steps=1``) leaves its velocities, from which the positions must be integrated
+  for the whole episode. Hiding a key (``velocity``) asks for a memory of a few steps only (a
   difference of positions), not of the whole episode.
 * ``noise_dims`` = K with ``noise_scale`` = s (``env.noise_dims``, ``env.noise_scale``): K
   extra dims, the observation key ``noise`` appended after the task's keys, that follow
