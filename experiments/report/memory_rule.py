@@ -59,24 +59,19 @@ def read_memory_rules(entries, problems: list[str] | None = None) -> list[Memory
     return rules
 
 
-def standard_error(stat: Stat) -> float:
-    return stat.std / math.sqrt(stat.n)
-
-
 def memory_rule_line(rule: MemoryRule, stat: Callable[[str, str], Stat], at: float) -> str:
     """The rule's verdict at env step ``at``; ``stat(task, method)`` is a method's value there
     over seeds ("not enough runs" below 2 seeds for any of the four)."""
-    agent, control, agent_full, control_full = (stat(rule.task, m) for m in rule.methods)
+    stats = [stat(rule.task, method) for method in rule.methods]
     where = f"{rule.title}, at {step_label(at)} env steps"
-    counts = ", ".join(f"{m} n={s.n}" for m, s in zip(
-        rule.methods, (agent, control, agent_full, control_full), strict=True))
-    if min(s.n for s in (agent, control, agent_full, control_full)) < 2:
+    if min(s.n for s in stats) < 2:
+        counts = ", ".join(f"{m} n={s.n}" for m, s in zip(rule.methods, stats, strict=True))
         return f"{where}: not enough runs for the control rule ({counts})."
+    agent, control, agent_full, control_full = stats
     variant_loss = agent.mean - control.mean
     full_loss = agent_full.mean - control_full.mean
     margin = variant_loss - full_loss
-    error = math.sqrt(sum(standard_error(s) ** 2
-                          for s in (agent, control, agent_full, control_full)))
+    error = math.sqrt(sum(s.std ** 2 / s.n for s in stats))
     outcome = ("the control loses more on the variant: **it tests memory**" if margin > 0 else
                "the control loses no more on the variant: **it does not test memory**")
     strength = " (by less than the standard error)" if abs(margin) < error else ""
