@@ -1,6 +1,6 @@
 """The run directory under faults and bad inputs: nothing lost, nothing mixed, no tracebacks.
 
-Each case of issue 18's table: corrupt checkpoints, another run's data, a second process, a
+Each case of the fault table: corrupt checkpoints, another run's data, a second process, a
 log directory that cannot be written, a failing write, bad values and flags. The run directory
 of a real (tiny) run is tests/fixtures/rundir_v1's bbs run; the rest is written here.
 """

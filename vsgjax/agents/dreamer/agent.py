@@ -225,7 +225,7 @@ class DreamerAgent:
         ``obs``: the spec's keys (``image`` [N, H, W, C] uint8, vectors [N, D] float32) and
         ``is_first`` [N] bool (other keys ignored).
         Where ``is_first``, the carried state and previous action are zeroed before the
-        posterior step. With ``ac.memoryless`` (issue 36's memoryless control) every step is
+        posterior step. With ``ac.memoryless`` (`cpu_memory`'s control) every step is
         treated as ``is_first``: the posterior is the observation's alone, nothing is carried
         between steps (training is unchanged). ``mode="train"`` samples the actor, ``"eval"``
         takes its mode (the latent state and VSG's gates are sampled in both, as in the

@@ -1,4 +1,4 @@
-"""Partially observed and noisy variants of any MJX task, in pure JAX (issue 36).
+"""Partially observed and noisy variants of any MJX task, in pure JAX.
 
 :class:`VariantTask` wraps an :class:`~vsgjax.envs.mjx.core.MjxTask` and changes only what the
 agent observes; the physics, rewards, action repeat and time limit are the wrapped task's, and
