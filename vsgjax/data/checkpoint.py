@@ -32,13 +32,10 @@ from __future__ import annotations
 import json
 import os
 import re
-import signal
 import struct
 import tempfile
-import threading
 import warnings
 import zlib
-from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -278,36 +275,3 @@ def rng_from_state(state: dict) -> np.random.Generator:
     bit_generator.state = state
     return np.random.Generator(bit_generator)
 
-
-class StopSignal:
-    """A flag set by SIGINT/SIGTERM so a training loop can save a checkpoint and exit cleanly.
-
-    Use as a context manager (handlers are installed on enter, the previous ones restored on
-    exit); the loop polls :attr:`requested`.  A second signal while the flag is already set
-    raises ``KeyboardInterrupt`` so a stuck loop can still be interrupted.  Signal handlers
-    can only be installed from the main thread.
-    """
-
-    def __init__(self, signals: Iterable[int] = (signal.SIGINT, signal.SIGTERM)):
-        self.signals = tuple(signals)
-        self.requested = False
-        self.received: int | None = None
-        self._previous: dict[int, Any] = {}
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        if self.requested:
-            raise KeyboardInterrupt(f"second signal {signal.Signals(signum).name}")
-        self.requested = True
-        self.received = signum
-
-    def __enter__(self) -> StopSignal:
-        if threading.current_thread() is not threading.main_thread():
-            raise RuntimeError("StopSignal must be entered from the main thread")
-        for signum in self.signals:
-            self._previous[signum] = signal.signal(signum, self._handle)
-        return self
-
-    def __exit__(self, *exc_info: Any) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-        self._previous.clear()

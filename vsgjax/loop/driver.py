@@ -24,6 +24,7 @@ from vsgjax.loop.evaluator import summarize
 from vsgjax.loop.logger import Progress
 from vsgjax.loop.rundir import RunDir, RunWriter
 from vsgjax.loop.schedule import Counters, Schedule
+from vsgjax.loop.stop_signal import StopSignal
 
 
 class SeedEval(NamedTuple):
@@ -221,7 +222,7 @@ class LoopDriver:
                      f"evaluated and saved (train.steps={train.steps}); a higher train.steps "
                      "trains it further")
             return 0
-        with checkpoint.StopSignal() as stop:
+        with StopSignal() as stop:
             while self.env_steps < train.steps and not stop.requested:
                 self.iteration()
                 self.tick()
