@@ -15,6 +15,8 @@ PYTEST_ARGS ?=
 # Python with mimalloc preloaded (vsgjax/allocator.py: XLA:CPU's scratch space is reused instead of
 # page-faulted back in on every update); plain Python where mimalloc is not installed.
 RUN      = MUJOCO_GL=osmesa PYOPENGL_PLATFORM=osmesa $(shell $(BIN)/python vsgjax/allocator.py) $(BIN)/python
+# Each target prints the short command it runs (`python ...`), not the environment and preload.
+SAY      = @printf '%s\n'
 
 .PHONY: setup test test-fast bench lint train evaluate clean
 
@@ -33,23 +35,30 @@ $(STAMP): pyproject.toml
 XDIST = -n 2 --dist loadfile
 
 test: setup
-	$(RUN) -m pytest -q $(XDIST) $(PYTEST_ARGS)
+	$(SAY) 'python -m pytest -q $(XDIST) $(PYTEST_ARGS)'
+	@$(RUN) -m pytest -q $(XDIST) $(PYTEST_ARGS)
 
 test-fast: setup
-	$(RUN) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
+	$(SAY) 'python -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)'
+	@$(RUN) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
 
 bench: setup
-	$(RUN) -m experiments.bench.run_all
+	$(SAY) 'python -m experiments.bench.run_all'
+	@$(RUN) -m experiments.bench.run_all
 
 lint: setup
 	$(BIN)/ruff check vsgjax bbs experiments tests
 
+TRAIN_ARGS = --task $(TASK) --model $(MODEL) --size $(SIZE) --seed $(SEED) \
+	$(if $(SEEDS),--seeds $(SEEDS)) --logdir '$(LOGDIR)' $(ARGS)
+
 train: setup
-	$(RUN) -m vsgjax.train --task $(TASK) --model $(MODEL) \
-		--size $(SIZE) --seed $(SEED) $(if $(SEEDS),--seeds $(SEEDS)) --logdir '$(LOGDIR)' $(ARGS)
+	$(SAY) "python -m vsgjax.train $(TRAIN_ARGS)"
+	@$(RUN) -m vsgjax.train $(TRAIN_ARGS)
 
 evaluate: setup
-	$(RUN) -m vsgjax.evaluate $(subst {seed},$(SEED),$(LOGDIR))
+	$(SAY) 'python -m vsgjax.evaluate $(subst {seed},$(SEED),$(LOGDIR))'
+	@$(RUN) -m vsgjax.evaluate $(subst {seed},$(SEED),$(LOGDIR))
 
 clean:
 	rm -rf $(VENV) .pytest_cache

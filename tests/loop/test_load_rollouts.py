@@ -233,7 +233,10 @@ def test_the_notebook_executes_on_the_run(logdir, monkeypatch):
     notebook = nbformat.read(NOTEBOOK, as_version=4)
     assert all(not cell.get("outputs") for cell in notebook.cells if cell.cell_type == "code")
     assert any("vsgjax.imagine(params, state, H=15)" in cell.source for cell in notebook.cells)
-    monkeypatch.setenv("VSGJAX_RUN", str(logdir))
+    # as a user would: the run named relative to the folder Jupyter is started from ($PWD),
+    # while the kernel runs in the notebook's folder
+    monkeypatch.setenv("PWD", str(logdir.parent))
+    monkeypatch.setenv("VSGJAX_RUN", logdir.name)
     monkeypatch.setenv("JAX_PLATFORMS", "cpu")
     client = NotebookClient(notebook, kernel_name="python3", timeout=300,
                             resources={"metadata": {"path": str(NOTEBOOK.parent)}})
