@@ -75,8 +75,8 @@ class DeviceTrainer(LoopDriver):
                               "seeds: the device loop spreads whole seeds over the devices; "
                               f"valid: a divisor of {len(configs)}")
         state = jax.eval_shape(self.program.init, jax.random.PRNGKey(0))
-        check_fits(self.config, len(configs), {"agent state": tree_bytes(state.agent),
-                                               "replay": tree_bytes(state.replay)})
+        check_fits(self.config, len(configs) // self.devices,  # the seeds of one device
+                   {"agent state": tree_bytes(state.agent), "replay": tree_bytes(state.replay)})
         self.runs = open_runs(lambda c, d: RunWriter(c, d, restart=restart), configs, logdirs)
         try:
             self._compile(len(self.runs))
