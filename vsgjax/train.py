@@ -22,7 +22,7 @@ from vsgjax.config import MODELS, SIZES, Config, ConfigError, make_config
 from vsgjax.config.checks import RANGES
 from vsgjax.data.checkpoint import WriteError
 from vsgjax.envs import TaskError, make_device_task, parse_task
-from vsgjax.envs.backgrounds import video_files
+from vsgjax.envs.backgrounds import check_videos
 from vsgjax.loop.device_trainer import DeviceTrainer
 from vsgjax.loop.driver import LoopDriver, NonFiniteLossError, group_label
 from vsgjax.loop.host_trainer import HostTrainer
@@ -119,8 +119,8 @@ def build_configs(args: argparse.Namespace, seeds: list[int],
     parse_task(configs[0].env.task)
     if family_of(args.task).on_device:  # its options are checked against the task's keys
         make_device_task(configs[0].env)
-    if configs[0].env.background == "video":  # the folder holds videos for both splits
-        video_files(configs[0].env.background_dir)
+    if configs[0].env.background == "video":  # videos that decode, for both splits
+        check_videos(configs[0].env.background_dir)
     return configs, {"size": size_note, "precision": precision_note}
 
 

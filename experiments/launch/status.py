@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import json
 import math
 import os
@@ -11,12 +10,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from experiments.launch.jobs import Job
+from experiments.slot import config_difference
 from experiments.spec import Run
-from vsgjax.config import config_changes, to_dict
 from vsgjax.data import checkpoint
 from vsgjax.loop.rundir import (
     CHECKPOINTS_DIR,
-    CONFIG_FILE,
     METRICS_FILE,
     SCORES_FILE,
     RunDir,
@@ -32,7 +30,10 @@ class Status:
     * ``new``: nothing yet (a launch starts it);
     * ``results only``: evaluations short of its steps without a checkpoint to resume
       from (never launched: training would start over and replace them);
-    * ``config differs``: a log directory of another config (never launched or touched);
+    * ``config differs``: a log directory of another config or seed (never launched or
+      touched; ``experiments.report`` does not count it either);
+    * ``damaged``: a ``scores.jsonl`` that cannot be read, or checkpoints none of which is
+      intact (never launched: the note says what is wrong and what to do);
     * ``blocked``: an evaluate / rollouts job whose source run has not finished training.
     """
 
@@ -88,22 +89,45 @@ def latest_step(logdir: Path) -> int | None:
     return max(steps) if steps else None
 
 
-def config_difference(run: Run, logdir: Path) -> list[str]:
-    """The keys (outside ``train``) where ``logdir/config.json`` differs from ``run.config()``,
-    as ``section.key: saved -> wanted``; [] when there is no config.json or it agrees."""
-    path = Path(logdir) / CONFIG_FILE
-    if not path.exists():
-        return []
+def intact_checkpoint(logdir: Path) -> tuple[int | None, list[str]]:
+    """(env step of the newest checkpoint whose header and CRC-32 are intact, None if none;
+    ``name: why`` of each corrupt one newer than it). Reads newest first, stopping at the first
+    intact one, as resuming does."""
+    corrupt = []
+    for step, path in reversed(checkpoint.list_checkpoints(Path(logdir) / CHECKPOINTS_DIR)):
+        try:
+            checkpoint.verify(path)
+        except (checkpoint.CorruptCheckpointError, OSError) as error:
+            corrupt.append(f"{path.name}: {error}")
+            continue
+        return step, corrupt
+    return None, corrupt
+
+
+def scores_problem(logdir: Path) -> str | None:
+    """Why ``scores.jsonl`` cannot be read (a line that is not JSON, no ``xs``/``ys`` lists of
+    one length); None when it is absent or readable."""
+    path = Path(logdir) / SCORES_FILE
     try:
-        saved = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as error:
-        return [f"{CONFIG_FILE} unreadable ({error})"]
-    return config_changes(saved, _wanted_config(run))
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError) as error:
+        return f"{SCORES_FILE} unreadable ({error})"
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError as error:
+            return f"{SCORES_FILE} line {number} is not JSON ({error.msg})"
+        xs, ys = (record.get("xs"), record.get("ys")) if isinstance(record, dict) else (0, 0)
+        if not isinstance(xs, list) or not isinstance(ys, list) or len(xs) != len(ys):
+            return f"{SCORES_FILE} line {number} has no xs/ys lists of one length"
+    return None
 
 
-@functools.cache
-def _wanted_config(run: Run) -> dict:
-    return to_dict(run.config())
+RETRAIN = "vsgjax.train --restart trains it again (the old run is moved aside)"
 
 
 def train_status(run: Run, logdir: Path) -> Status:
@@ -111,12 +135,21 @@ def train_status(run: Run, logdir: Path) -> Status:
     changed = config_difference(run, logdir)
     if changed:
         return Status("config differs", note="; ".join(changed))
-    ckpt = checkpoint_step(logdir)
+    ckpt, corrupt = intact_checkpoint(logdir)
     step, score = latest_step(logdir), latest_score(logdir)
+    if ckpt is None and corrupt:
+        return Status("damaged", step, run.steps, score,
+                      f"no intact checkpoint ({'; '.join(corrupt)}); {RETRAIN}")
+    problem = scores_problem(logdir)
+    if problem:
+        return Status("damaged", step, run.steps, "", f"{problem}; restore it from a copy, "
+                      f"or {RETRAIN}")
+    skipped = f"corrupt: {'; '.join(corrupt)}" if corrupt else ""
     if ckpt is not None and ckpt >= run.steps:
-        return Status("done", ckpt, run.steps, score)
+        return Status("done", ckpt, run.steps, score, skipped)
     if ckpt is not None:
-        return Status("partial", step, run.steps, score, f"resumes from env step {ckpt}")
+        return Status("partial", step, run.steps, score,
+                      f"resumes from env step {ckpt}" + (f" ({skipped})" if skipped else ""))
     evaluated = RunDir(logdir).evaluated_without_checkpoint()
     if evaluated is not None:
         if evaluated >= run.steps:
@@ -132,8 +165,8 @@ def job_status(job: Job) -> Status:
     if job.kind == "train":
         return train_status(job.run, job.job_dir)
     source = train_status(job.run, job.source_dir)
-    if source.state == "config differs":
-        return Status("blocked", note=f"source {job.source_dir}: config differs: {source.note}")
+    if source.state in ("config differs", "damaged"):
+        return Status("blocked", note=f"source {job.source_dir}: {source.state}: {source.note}")
     if job.kind == "evaluate" and job.output.exists():
         return Status("done", source.step, score=_evaluation_score(job.output))
     if job.kind == "rollouts" and job.done_marker.exists():

@@ -25,7 +25,7 @@ from experiments.report.style import relative, step_label
 from experiments.report.summary import draw_summary, summary_data, summary_markdown
 from experiments.report.versus import draw_versus, versus_data, versus_markdown
 from experiments.spec import DEFAULT_ROOT, PAPER_DIR, Experiment, Run
-from vsgjax.loop.rundir import SCORES_FILE
+from vsgjax.loop.rundir import CONFIG_FILE, SCORES_FILE
 
 
 @dataclass
@@ -148,6 +148,11 @@ def report_markdown(report: Report, context: Context, root: Path) -> str:
         lines.append(f"{len(report.missing)} of {len(runs)} runs have no results:")
         lines.append("")
         for run in report.missing:
+            differs = context.records.differs(run) if experiment.kind == "train" else ""
+            if differs:
+                lines.append(f"- {run_name(run)}: `{run.logdir(root) / CONFIG_FILE}` is "
+                             f"another run's (config differs: {differs}); not counted")
+                continue
             where = (run.logdir(root) / SCORES_FILE if experiment.kind == "train"
                      else experiment.job_dir(run, root))
             lines.append(f"- {run_name(run)}: `{where}`")

@@ -125,14 +125,17 @@ def open_loop_data(context: Context, at: float | None = None) -> OpenLoopData:
             for run in context.runs_of(task, method):
                 if run.model not in world_models:
                     continue  # no world model, nothing imagined
+                differs = context.records.differs(run)
                 path = run.logdir(context.records.root) / OPEN_LOOP_FILE
-                records = read_open_loop(path, context.records.problems) if path.exists() \
-                    else []
+                records = read_open_loop(path, context.records.problems) \
+                    if path.exists() and not differs else []
                 record = pick(records, at, spacing)
                 if record is None:
                     missing.append(run)
                     why[run] = (f"no evaluation within {step_label(spacing)} env steps of "
-                                f"{step_label(at)} in `{path}`" if records else f"`{path}`")
+                                f"{step_label(at)} in `{path}`" if records else
+                                f"`{path}`" + (f" (config differs: {differs})" if differs
+                                               else ""))
                 else:
                     chosen.append(record)
             if not chosen:

@@ -112,9 +112,11 @@ def last_gate_values(path: Path, problems: list[str] | None = None) -> dict[str,
 
 
 def gate_stats(context: Context, runs: list[Run]) -> dict[str, Stat]:
-    """Per gate key: mean ± std over the runs of each one's last logged value."""
+    """Per gate key: mean ± std over the runs of each one's last logged value (a directory
+    that holds another run is not counted)."""
     values = [last_gate_values(run.logdir(context.records.root) / METRICS_FILE,
-                               context.records.problems) for run in runs]
+                               context.records.problems)
+              for run in runs if not context.records.differs(run)]
     return {key: Stat.of(value.get(key) for value in values) for key in GATE_KEYS}
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.slot import config_difference
 from experiments.spec import Run
 from vsgjax.loop.rundir import CONFIG_FILE, EVAL_EPISODES_FILE, SCORES_FILE
 
@@ -88,13 +89,22 @@ class RunRecords:
         self.root = Path(root)
         self.problems: list[str] = []
         self._scores: dict[Run, Curve | None] = {}
+        self._differs: dict[Run, str] = {}
+
+    def differs(self, run: Run) -> str:
+        """Why the run's log directory holds another run (its ``config.json`` is of another
+        model, config or seed: ``launch --status`` shows it as ``config differs``); "" when it
+        is the run's. A run that differs has no records here."""
+        if run not in self._differs:
+            self._differs[run] = "; ".join(config_difference(run, run.logdir(self.root)))
+        return self._differs[run]
 
     def scores(self, run: Run) -> Curve | None:
         """The run's last valid ``scores.jsonl`` record (the file is rewritten at every
         evaluation), or, without one, the mean return per step of ``eval_episodes.jsonl``;
-        None when neither has an evaluation."""
+        None when neither has an evaluation or the directory holds another run."""
         if run not in self._scores:
-            self._scores[run] = self._read_scores(run)
+            self._scores[run] = None if self.differs(run) else self._read_scores(run)
         return self._scores[run]
 
     def _read_scores(self, run: Run) -> Curve | None:

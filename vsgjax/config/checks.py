@@ -221,7 +221,8 @@ def _check_variant_options(config: Config) -> None:
 
 def _check_background_options(config: Config) -> None:
     """The backgrounds are DMC's; ``video`` needs ``env.background_dir`` (whether it holds two
-    videos or more is checked where the env is built, and by ``vsgjax.train`` first)."""
+    videos or more is checked where the env is built, and by ``vsgjax.train`` first, which also
+    decodes the first frame of every one: :func:`vsgjax.envs.backgrounds.check_videos`)."""
     env, defaults = config.env, EnvConfig()
     family = family_of(env.task)
     if not family.backgrounds:

@@ -8,7 +8,9 @@ its first frame, :meth:`step` the next one. :func:`composite` pastes a frame beh
   Kinetics-400 "driving car" videos). The files, sorted by name, split into a train half (even
   positions) and a test half (odd positions, for the evaluation envs). Each episode plays one
   video of its split from a random start frame, one frame per observation, looping at its end,
-  resized to the image size.
+  resized to the image size. Videos are decoded in the process by OpenCV's FFmpeg (no
+  subprocess: forking a process that runs JAX's threads can deadlock it), and
+  :func:`check_videos` decodes the first frame of every file before a run writes anything.
 - ``dots``: coloured dots on black, each moving by its law: ``bounce`` (constant velocity,
   reflected at the borders) or ``brownian`` (Gaussian increments, reflected at the borders), as
   the Distracting Control Suite's and gym-distractions' dots.
@@ -128,23 +130,63 @@ def video_files(folder: str) -> list[Path]:
     return files
 
 
+def video_problem(path: Path) -> str | None:
+    """Why the first frame of the video file ``path`` cannot be decoded (unreadable, empty,
+    not a video or truncated); None when it decodes."""
+    import cv2
+
+    try:
+        with open(path, "rb") as file:
+            if not file.read(1):
+                return "it is empty"
+    except OSError as error:
+        return f"it cannot be read ({error.strerror or error})"
+    capture = cv2.VideoCapture(str(path))
+    try:
+        if not capture.isOpened():
+            return "FFmpeg cannot open it (not a video, or truncated)"
+        decoded, _ = capture.read()
+    finally:
+        capture.release()
+    return None if decoded else "FFmpeg opens it but decodes no frame (damaged or truncated)"
+
+
+def check_videos(folder: str) -> list[Path]:
+    """:func:`video_files` of ``folder`` after decoding the first frame of every one;
+    ConfigError naming the first file that does not decode and why."""
+    files = video_files(folder)
+    for path in files:
+        problem = video_problem(path)
+        if problem:
+            raise ConfigError(f"env.background_dir={folder!r}: video {path.name!r} does not "
+                              f"decode: {problem}; valid: a folder whose video files "
+                              f"({', '.join(VIDEO_SUFFIXES)}) all decode (move or replace it)")
+    return files
+
+
 def split(files: list[Path], test: bool) -> list[Path]:
     """The train (even positions) or test (odd positions) half of the sorted files."""
     return files[1::2] if test else files[0::2]
 
 
 def read_video(path: Path, size: int) -> np.ndarray:
-    """Every frame of a video file as ``(T, size, size, 3)`` uint8 (area-averaged resize)."""
-    import imageio.v3 as iio
+    """Every frame of a video file as ``(T, size, size, 3)`` uint8 RGB (area-averaged resize),
+    decoded in this process (see the module doc); frames after a damaged one are dropped."""
+    import cv2
 
+    capture = cv2.VideoCapture(str(path))
     frames = []
-    for frame in iio.imiter(path):
-        frame = np.asarray(frame)
-        frame = np.repeat(frame[..., None], 3, -1) if frame.ndim == 2 else frame[..., :3]
-        image = Image.fromarray(frame.astype(np.uint8))
-        frames.append(np.asarray(image.resize((size, size), Image.Resampling.BOX)))
+    try:
+        while True:
+            decoded, frame = capture.read()  # BGR, 3 channels (grey videos converted)
+            if not decoded:
+                break
+            image = Image.fromarray(np.ascontiguousarray(frame[..., ::-1]))
+            frames.append(np.asarray(image.resize((size, size), Image.Resampling.BOX)))
+    finally:
+        capture.release()
     if not frames:
-        raise ValueError(f"video {str(path)!r} has no frames")
+        raise ValueError(f"video {str(path)!r} has no frame that decodes")
     return np.stack(frames)
 
 

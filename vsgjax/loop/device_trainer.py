@@ -35,6 +35,7 @@ from vsgjax.loop.driver import (
     unlock_runs,
 )
 from vsgjax.loop.gate_logging import logs_gates, probe_key
+from vsgjax.loop.memory_check import check_fits, tree_bytes
 from vsgjax.loop.parallel import resolve_devices, seed_batched, seed_sharding, stack, take
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.schedule import Counters
@@ -73,6 +74,9 @@ class DeviceTrainer(LoopDriver):
             raise ConfigError(f"train.devices={self.devices} does not divide the {len(configs)} "
                               "seeds: the device loop spreads whole seeds over the devices; "
                               f"valid: a divisor of {len(configs)}")
+        state = jax.eval_shape(self.program.init, jax.random.PRNGKey(0))
+        check_fits(self.config, len(configs) // self.devices,  # the seeds of one device
+                   {"agent state": tree_bytes(state.agent), "replay": tree_bytes(state.replay)})
         self.runs = open_runs(lambda c, d: RunWriter(c, d, restart=restart), configs, logdirs)
         try:
             self._compile(len(self.runs))

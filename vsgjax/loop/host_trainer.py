@@ -24,6 +24,7 @@ from vsgjax.config.checks import max_episode_steps
 from vsgjax.data import checkpoint
 from vsgjax.data.collect import Collector, EnvBatch, SeedEnvs, make_env_batch
 from vsgjax.data.replay import Replay
+from vsgjax.envs import EnvSpec
 from vsgjax.episode_keys import IMAGE_KEY
 from vsgjax.loop.driver import (
     FirstUpdate,
@@ -40,6 +41,7 @@ from vsgjax.loop.driver import (
 )
 from vsgjax.loop.evaluator import Evaluator
 from vsgjax.loop.gate_logging import logs_gates
+from vsgjax.loop.memory_check import check_fits, host_replay_steps, host_step_bytes, tree_bytes
 from vsgjax.loop.parallel import Parallel, mesh_shape, resolve_devices, split_keys, stack, take
 from vsgjax.loop.run_state import checkpoint_tree, restore_latest
 from vsgjax.loop.rundir import RunWriter
@@ -126,19 +128,33 @@ class HostTrainer(LoopDriver):
         self.devices = resolve_devices(self.config)
         mesh_shape(len(configs), self.devices, self.config.train.batch)  # the batch must split
         check_first_update(self.config, logdirs, first_update(self.config))
-        self.runs = open_runs(lambda c, d: SeedRun(c, d, restart=restart), configs, logdirs)
+        eval_envs = [make_envs(c.env, c.train.seed, self.config.env.eval_envs, eval=True)
+                     for c in configs]
         try:
-            self._set_up(configs, make_envs, progress)
+            self.agent = make_agent(self.config, eval_envs[0].spec)
+            self._check_memory(len(configs), eval_envs[0].spec)
+            self.runs = open_runs(lambda c, d: SeedRun(c, d, restart=restart), configs,
+                                  logdirs)
+        except BaseException:
+            for envs in eval_envs:
+                envs.close()
+            raise
+        try:
+            self._set_up(eval_envs, make_envs, progress)
         except BaseException:
             unlock_runs(self.runs)
             raise
 
-    def _set_up(self, configs: list[Config], make_envs: MakeEnvs, progress: bool) -> None:
-        """Envs, agent, the restored (or fresh) state of every seed, the collector."""
+    def _check_memory(self, seeds: int, spec: EnvSpec) -> None:
+        """Refuse a run whose agent states and replays cannot fit (:mod:`memory_check`)."""
+        state = jax.eval_shape(self.agent.init, jax.random.PRNGKey(0))
+        steps = host_replay_steps(self.config, max_episode_steps(self.config))
+        check_fits(self.config, seeds, {"agent state": tree_bytes(state)},
+                   {"replay": steps * host_step_bytes(spec)})
+
+    def _set_up(self, eval_envs: list[EnvBatch], make_envs: MakeEnvs, progress: bool) -> None:
+        """The restored (or fresh) state of every seed, its replay, the collector."""
         train, env = self.config.train, self.config.env
-        eval_envs = [make_envs(c.env, c.train.seed, env.eval_envs, eval=True) for c in configs]
-        spec = eval_envs[0].spec
-        self.agent = make_agent(self.config, spec)
         self._said_no_videos = False
 
         def restore(run: SeedRun, max_step: int | None):

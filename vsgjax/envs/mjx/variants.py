@@ -109,9 +109,16 @@ class VariantState(NamedTuple):
         return self.plain.info
 
 
-def parse_keys(text: str) -> tuple[str, ...]:
-    """``"a, b,c"`` -> ``("a", "b", "c")`` (empty entries dropped, repeats once)."""
-    return tuple(dict.fromkeys(part.strip() for part in text.split(",") if part.strip()))
+def parse_keys(text: str, option: str, valid: tuple[str, ...]) -> tuple[str, ...]:
+    """``"a, b,c"`` -> ``("a", "b", "c")`` (repeats once; ``""``: none); ConfigError naming
+    ``env.<option>`` and the ``valid`` keys for an empty entry (``"a,"``, ``"a,,b"``)."""
+    if not text.strip():
+        return ()
+    parts = [part.strip() for part in text.split(",")]
+    if not all(parts):
+        raise ConfigError(f"env.{option}={text!r} has an empty key; valid: comma-separated "
+                          f"keys of {', '.join(valid)}, e.g. env.{option}={valid[0]}")
+    return tuple(dict.fromkeys(parts))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -243,10 +250,12 @@ class VariantTask:
                             flickered)
 
 
-def options(env_cfg) -> dict:
-    """The variant options of an ``EnvConfig`` as :class:`VariantTask` arguments."""
-    return {"flicker": env_cfg.flicker, "hide": parse_keys(env_cfg.hide),
-            "show_keys": parse_keys(env_cfg.show_keys), "show_steps": env_cfg.show_steps,
+def options(env_cfg, keys: tuple[str, ...]) -> dict:
+    """The variant options of an ``EnvConfig`` as :class:`VariantTask` arguments (``keys``:
+    the task's observation keys, named when ``env.hide`` or ``env.show_keys`` is malformed)."""
+    return {"flicker": env_cfg.flicker, "hide": parse_keys(env_cfg.hide, "hide", keys),
+            "show_keys": parse_keys(env_cfg.show_keys, "show_keys", keys),
+            "show_steps": env_cfg.show_steps,
             "noise_dims": env_cfg.noise_dims, "noise_scale": env_cfg.noise_scale}
 
 
@@ -255,7 +264,7 @@ def from_env_config(task: MjxTask, env_cfg) -> MjxTask | VariantTask:
     (``env.noise_scale`` alone changes nothing: it scales noise dims that are not there), so
     a run without variants steps exactly the plain task. Raises ConfigError for a bad option
     (a key the task does not observe, ...)."""
-    chosen = options(env_cfg)
+    chosen = options(env_cfg, task.obs_keys)
     if not (chosen["flicker"] or chosen["hide"] or chosen["show_keys"] or chosen["show_steps"]
             or chosen["noise_dims"]):
         return task
