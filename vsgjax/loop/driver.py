@@ -264,6 +264,8 @@ class LoopDriver:
         """``train.eval_episodes`` episodes of each seed's actor mode -> scores, eval records,
         the open-loop errors (agents with a world model), the message, and videos when due."""
         step = self.env_steps
+        self.progress.write(f"evaluating at env step {step}: {self.config.train.eval_episodes} "
+                            "episodes of the actor's mode per seed")
         results = self.eval_episodes()
         self.tick()
         clocks = {"wall_s": self.counters.wall_s, "cpu_s": self.counters.cpu_s}
