@@ -23,7 +23,7 @@ import vsgjax
 from experiments import launch, report
 from tests.support.overrides import replaced
 from vsgjax import evaluate, train
-from vsgjax.config import ConfigError, make_config
+from vsgjax.config import ConfigError, make_config, to_dict
 from vsgjax.data import checkpoint
 from vsgjax.data.replay import EpisodeStore
 from vsgjax.data.replay.store import read_episode
@@ -73,9 +73,12 @@ def snapshot(logdir: Path) -> dict[str, bytes]:
             if p.is_file() and p.name != LOCK_FILE}
 
 
-def save_checkpoints(logdir: Path, steps: list[int]) -> None:
+def save_checkpoints(logdir: Path, steps: list[int], trained=None) -> None:
+    """Checkpoints of a stand-in tree, each holding the config it was ``trained`` with
+    (:func:`config` by default)."""
+    meta = {"config": to_dict(trained or config())}
     for step in steps:
-        checkpoint.save(logdir / "checkpoints", step, {"x": np.full(3, step)}, {"step": step})
+        checkpoint.save(logdir / "checkpoints", step, {"x": np.full(3, step)}, meta)
 
 
 # --- corrupt checkpoints ---------------------------------------------------------------------

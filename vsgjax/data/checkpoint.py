@@ -29,6 +29,7 @@ not a reason to fall back silently.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -43,6 +44,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
+import msgpack
 import numpy as np
 from flax import serialization
 
@@ -187,6 +189,23 @@ def verify(path: str | os.PathLike) -> None:
     _payload(Path(path).read_bytes())
 
 
+def read_meta(path: str | os.PathLike) -> dict:
+    """The ``meta`` of one checkpoint file, after checking its header and CRC, without
+    decoding its arrays; raises CorruptCheckpointError (or OSError)."""
+    payload = _payload(Path(path).read_bytes())
+    # msgpack stores the payload's keys sorted ("leaves" before "meta"): the leaves are
+    # skipped unread, each of them held in the unpacker's buffer at most once
+    unpacker = msgpack.Unpacker(io.BytesIO(payload), raw=False, max_buffer_size=len(payload))
+    try:
+        for _ in range(unpacker.read_map_header()):
+            if unpacker.unpack() == "meta":
+                return json.loads(unpacker.unpack())
+            unpacker.skip()
+    except (ValueError, msgpack.UnpackException) as error:
+        raise CorruptCheckpointError(f"unreadable payload ({error})") from None
+    raise CorruptCheckpointError("the payload holds no meta")
+
+
 def _payload(data: bytes) -> bytes:
     """The payload of a checkpoint file's bytes, after checking header, length and CRC."""
     if len(data) < _HEADER.size:
@@ -209,11 +228,14 @@ def _fill(target: Any, paths: list[str], leaves: dict[str, Any]) -> Any:
     target_with_paths, treedef = jax.tree_util.tree_flatten_with_path(target)
     target_paths = [jax.tree_util.keystr(path) for path, _ in target_with_paths]
     if target_paths != list(paths):
-        missing = sorted(set(target_paths) - set(paths))
-        extra = sorted(set(paths) - set(target_paths))
+        pairs = zip(target_paths, paths, strict=False)  # the shorter list's length
+        first = next((i for i, (a, b) in enumerate(pairs) if a != b),
+                     min(len(paths), len(target_paths)))
+        saved = paths[first] if first < len(paths) else "none"
+        wanted = target_paths[first] if first < len(target_paths) else "none"
         raise CheckpointMismatchError(
-            f"checkpoint tree differs from target: missing {missing[:5]}, unexpected "
-            f"{extra[:5]} ({len(paths)} saved leaves, {len(target_paths)} target leaves)"
+            f"its tree is not this run's: {len(paths)} saved leaves, {len(target_paths)} "
+            f"wanted; leaf {first} is {saved}, wanted {wanted}"
         )
     filled = [
         _like(path, leaves[str(i)], like)
@@ -259,6 +281,10 @@ def restore(directory: str | os.PathLike, target: Any,
                 stacklevel=2,
             )
             continue
+        except CheckpointMismatchError as error:
+            raise CheckpointMismatchError(f"checkpoint {path} does not fit this run ({error}); "
+                                          "is it another run's? move it out of the run's "
+                                          "checkpoints/") from None
         return Checkpoint(step=step, tree=tree, meta=meta, path=path)
     return None
 

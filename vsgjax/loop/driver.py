@@ -69,12 +69,16 @@ def check_seed_group(configs: list[Config], logdirs: list[Path]) -> None:
 
 def open_runs(make_run: Callable[[Config, Path], RunWriter], configs: list[Config],
               logdirs: list[Path]) -> list[RunWriter]:
-    """Each seed's run directory, opened (and locked) in turn; when one cannot be opened, the
-    ones before are unlocked again."""
+    """Each seed's run directory, opened (locked and checked) in turn, then, once every seed's
+    is, prepared (``make_run`` gives them unprepared): a refusal of any seed's directory comes
+    before anything in any of them is moved. When one cannot be opened, the ones before are
+    unlocked again."""
     runs = []
     try:
         for config, logdir in zip(configs, logdirs, strict=True):
             runs.append(make_run(config, logdir))
+        for run in runs:
+            run.prepare()
     except BaseException:
         unlock_runs(runs)
         raise
@@ -126,15 +130,18 @@ class FirstUpdate(NamedTuple):
     why: str
 
 
-def check_first_update(config: Config, logdirs: list[Path], first: FirstUpdate) -> None:
-    """ConfigError when a new run (no checkpoint in any of ``logdirs``) would end before its
-    first update: it would collect and evaluate, and train nothing."""
+def check_first_update(config: Config, logdirs: list[Path], first: FirstUpdate, *,
+                       restart: bool = False) -> None:
+    """ConfigError when a new run (no checkpoint in any of ``logdirs``, or ``restart``) would
+    end before its first update: it would collect and evaluate, and train nothing."""
     steps = config.train.steps
-    if steps >= first.smallest_steps or any(RunDir(d).checkpoints() for d in logdirs):
+    if steps >= first.smallest_steps or (
+            not restart and any(RunDir(d).checkpoints() for d in logdirs)):
         return
+    again = "starting over with --restart, " if restart else ""
     raise ConfigError(f"train.steps={steps} ends before the run's first update, at env step "
-                      f"{first.step} ({first.why}), so it would train nothing; the smallest "
-                      f"train.steps that trains is {first.smallest_steps}")
+                      f"{first.step} ({first.why}), so {again}it would train nothing; the "
+                      f"smallest train.steps that trains is {first.smallest_steps}")
 
 
 def saved_counters(restored: checkpoint.Checkpoint) -> Counters:
