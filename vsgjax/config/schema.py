@@ -341,8 +341,9 @@ def config_changes(saved: dict, current: dict) -> list[str]:
     for section in sorted(set(current) | set(saved)):
         new, old = current.get(section), saved.get(section)
         if isinstance(new, dict) or isinstance(old, dict):
-            # a key the saved config predates counts as its default (e.g. wm.encoder)
-            new, old = new or {}, {**defaults.get(section, {}), **(old or {})}
+            # a key a saved config predates counts as its default (e.g. wm.encoder)
+            section_defaults = defaults.get(section, {})
+            new, old = {**section_defaults, **(new or {})}, {**section_defaults, **(old or {})}
             changed += [f"{section}.{key}: {old.get(key)!r} -> {new.get(key)!r}"
                         for key in sorted(set(new) | set(old))
                         if old.get(key) != new.get(key)

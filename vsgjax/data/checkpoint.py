@@ -23,8 +23,8 @@ detection with no background threads, directory renames or extra dependencies.
 Atomicity and fallback: a crash while saving leaves at most a hidden ``.ckpt-*.tmp`` file,
 never a partial ``.ckpt``.  :func:`restore` tries checkpoints newest first; a file with a bad
 magic, length or CRC is reported with ``warnings.warn`` and the previous one is used.
-A checkpoint that is intact but does not fit the target is an error (a changed config),
-not a reason to fall back silently.
+A checkpoint that is intact but does not fit the target is an error naming it (another run's
+checkpoint, or a changed config), not a reason to fall back silently.
 """
 
 from __future__ import annotations
@@ -60,7 +60,15 @@ class CorruptCheckpointError(ValueError):
 
 
 class CheckpointMismatchError(ValueError):
-    """An intact checkpoint whose tree does not match the restore target."""
+    """An intact checkpoint whose tree does not match the restore target: ``reason`` says
+    where; ``path`` and ``step`` name the checkpoint (when restored from a directory)."""
+
+    def __init__(self, reason: str, path: Path | None = None, step: int | None = None):
+        message = reason if path is None else (
+            f"checkpoint {path} does not fit this run ({reason}); is it another run's? move it "
+            "out of the run's checkpoints/")
+        super().__init__(message)
+        self.reason, self.path, self.step = reason, path, step
 
 
 class WriteError(OSError):
@@ -282,9 +290,7 @@ def restore(directory: str | os.PathLike, target: Any,
             )
             continue
         except CheckpointMismatchError as error:
-            raise CheckpointMismatchError(f"checkpoint {path} does not fit this run ({error}); "
-                                          "is it another run's? move it out of the run's "
-                                          "checkpoints/") from None
+            raise CheckpointMismatchError(error.reason, path, step) from None
         return Checkpoint(step=step, tree=tree, meta=meta, path=path)
     return None
 

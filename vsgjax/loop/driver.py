@@ -101,7 +101,7 @@ def restore_seeds(runs: list[RunWriter], restore: Restore) -> list[checkpoint.Ch
     seeds save one after the other; a run killed between two saves resumes all of them from
     the step before (``checkpoint.save`` then drops the newer one on the next save).
     """
-    restored = [restore(run, None) for run in runs]
+    restored = [restore_own(run, restore, None) for run in runs]
     if all(c is None for c in restored):
         return None
     missing = [run.seed for run, c in zip(runs, restored, strict=True) if c is None]
@@ -110,7 +110,7 @@ def restore_seeds(runs: list[RunWriter], restore: Restore) -> list[checkpoint.Ch
             f"seeds {group_label(missing)} have no checkpoint while the other seeds have one; "
             "the seeds of one process train in lockstep: train them in separate runs")
     step = min(c.step for c in restored)
-    restored = [c if c.step == step else restore(run, step)
+    restored = [c if c.step == step else restore_own(run, restore, step)
                 for run, c in zip(runs, restored, strict=True)]
     counters = [saved_counters(c) if c else None for c in restored]
     if any(c is None or c.step != step for c in restored) or any(
@@ -119,6 +119,31 @@ def restore_seeds(runs: list[RunWriter], restore: Restore) -> list[checkpoint.Ch
                           f"checkpoint to resume from (newest common step {step}); resume them "
                           "in separate runs")
     return restored
+
+
+def restore_own(run: RunWriter, restore: Restore,
+                max_step: int | None) -> checkpoint.Checkpoint | None:
+    """``restore(run, max_step)``, falling back past checkpoints that do not fit the run's
+    model: another run's, written before checkpoints held their config, so that only their
+    arrays tell. Once an older one fits, those are moved to ``checkpoints/foreign/`` (and
+    said, :attr:`RunWriter.foreign_moved`); when none fits, the newest one's error, nothing
+    moved."""
+    misfits: dict[Path, checkpoint.CheckpointMismatchError] = {}
+    while True:
+        try:
+            restored = restore(run, max_step)
+        except checkpoint.CheckpointMismatchError as error:
+            misfits[error.path] = error
+            older = [step for step, _ in run.checkpoints() if step < error.step]
+            max_step = older[-1] if older else None
+            if older:
+                continue
+            restored = None
+        if misfits and restored is None:
+            raise next(iter(misfits.values()))
+        run.set_aside_foreign({path: f"it does not fit this run's model: {error.reason}"
+                               for path, error in misfits.items()})
+        return restored
 
 
 class FirstUpdate(NamedTuple):

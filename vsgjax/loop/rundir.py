@@ -203,9 +203,7 @@ class RunWriter(RunDir):
                 self.moved_to = move_aside(self.logdir)
             else:
                 set_aside_corrupt(self.ckpt_dir, self.survey.corrupt)
-                moved = set_aside(self.ckpt_dir, FOREIGN_DIR, self.survey.foreign)
-                self.foreign_moved = [(path, target, self.survey.foreign[path])
-                                      for path, target in moved.items()]
+                self.set_aside_foreign(self.survey.foreign)
             remove_interrupted_writes(self.logdir, self.ckpt_dir, self.episodes_dir,
                                       self.path(VIDEOS_DIR))
             self.attempt_moved_to = None if self.checkpoints() else self._move_killed_attempt()
@@ -213,6 +211,11 @@ class RunWriter(RunDir):
         except BaseException:
             self.lock.unlock()
             raise
+
+    def set_aside_foreign(self, foreign: dict[Path, str]) -> None:
+        """Move another run's checkpoints (path -> why) to ``checkpoints/foreign/``."""
+        moved = set_aside(self.ckpt_dir, FOREIGN_DIR, foreign)
+        self.foreign_moved += [(path, target, foreign[path]) for path, target in moved.items()]
 
     def _check(self) -> Survey:
         """Every refusal of a directory that holds another run, or no run to resume: corrupt
