@@ -163,11 +163,19 @@ def make_trainer(configs: list[Config], logdirs: list[Path], *, progress: bool =
 
 
 def set_aside_lines(runs: list[RunWriter]) -> list[str]:
-    """What opening the run directories moved to ``previous/`` (nothing is deleted)."""
+    """What opening the run directories found and moved aside (nothing is deleted): the old
+    contents (``--restart``), another run's checkpoints, a killed attempt, the episodes after
+    the checkpoint; and a config rebuilt from a checkpoint."""
     lines = []
     for run in runs:
         if run.moved_to is not None:
             lines.append(f"--restart: moved the old contents of {run.logdir} to {run.moved_to}")
+        if run.config_from is not None:
+            lines.append(f"{run.logdir}: config.json is missing: the run's config is rebuilt "
+                         f"from {run.config_from.name}, the config it was trained with")
+        for path, target, why in run.foreign_moved:
+            lines.append(f"{path} is not this run's checkpoint ({why}): moved it to {target}; "
+                         "the run resumes from its own newest checkpoint")
         if run.attempt_moved_to is not None:
             lines.append(f"{run.logdir} held an attempt killed before its first checkpoint "
                          f"and evaluation: moved what it wrote to {run.attempt_moved_to}; "

@@ -100,8 +100,20 @@ def test_target_mismatch_is_an_error_not_a_fallback(tmp_path):
         checkpoint.restore(tmp_path, wider)
     renamed = make_state()
     renamed["extra"] = jnp.zeros(1)
-    with pytest.raises(CheckpointMismatchError, match=r"missing \[\"\['extra'\]\"\]"):
+    with pytest.raises(CheckpointMismatchError,
+                       match=r"checkpoint .*ckpt-000000000001\.ckpt does not fit this run \(its "
+                             r"tree is not this run's: 15 saved leaves, 16 wanted; leaf 0 is "
+                             r"\['key'\], wanted \['extra'\]\); is it another run's\?"):
         checkpoint.restore(tmp_path, renamed)
+
+
+def test_the_meta_reads_without_decoding_the_arrays(tmp_path):
+    meta = {"counters": {"updates": 3}, "config": {"train": {"seed": 1}}}
+    path = checkpoint.save(tmp_path, 1, make_state(), meta)
+    assert checkpoint.read_meta(path) == meta
+    path.write_bytes(path.read_bytes()[:-1])
+    with pytest.raises(checkpoint.CorruptCheckpointError, match="payload has"):
+        checkpoint.read_meta(path)
 
 
 def test_typed_keys_and_non_json_meta_are_rejected(tmp_path):

@@ -8,6 +8,7 @@ of a real (tiny) run is tests/fixtures/rundir_v1's bbs run; the rest is written 
 from __future__ import annotations
 
 import errno
+import json
 import os
 import shutil
 import signal
@@ -15,6 +16,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -23,19 +25,22 @@ import vsgjax
 from experiments import launch, report
 from tests.support.overrides import replaced
 from vsgjax import evaluate, train
-from vsgjax.config import ConfigError, make_config
+from vsgjax.agents.dreamer.agent import DreamerAgent
+from vsgjax.config import ConfigError, config_changes, make_config, to_dict
 from vsgjax.data import checkpoint
 from vsgjax.data.replay import EpisodeStore
 from vsgjax.data.replay.store import read_episode
 from vsgjax.envs import make_device_task
 from vsgjax.loop.device_program import DeviceProgram
 from vsgjax.loop.host_trainer import first_update
+from vsgjax.loop.run_state import checkpoint_tree
 from vsgjax.loop.rundir import RunWriter
-from vsgjax.loop.rundir_guard import LOCK_FILE, PREVIOUS_DIR, RunDirError
+from vsgjax.loop.rundir_guard import FOREIGN_DIR, LOCK_FILE, PREVIOUS_DIR, RunDirError
 from vsgjax.registry.tasks import family_of
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURE = ROOT / "tests" / "fixtures" / "rundir_v1" / "bbs_basic-vsg-debug"
+MJX_FIXTURE = FIXTURE.parent / "mjx_cartpole_swingup-vsg-debug"
 OVERRIDES = ["env.time_limit=200", "train.eval_every=200", "train.ckpt_every=100"]
 FLAGS = ["--task", "bbs_basic", "--model", "vsg", "--size", "debug", "--no-progress"]
 CKPT = "ckpt-000000000320.ckpt"
@@ -73,9 +78,29 @@ def snapshot(logdir: Path) -> dict[str, bytes]:
             if p.is_file() and p.name != LOCK_FILE}
 
 
-def save_checkpoints(logdir: Path, steps: list[int]) -> None:
+def save_checkpoints(logdir: Path, steps: list[int], trained=None) -> None:
+    """Checkpoints of a stand-in tree, each holding the config it was ``trained`` with
+    (:func:`config` by default)."""
+    meta = {"config": to_dict(trained or config())}
     for step in steps:
-        checkpoint.save(logdir / "checkpoints", step, {"x": np.full(3, step)}, {"step": step})
+        checkpoint.save(logdir / "checkpoints", step, {"x": np.full(3, step)}, meta)
+
+
+def with_config(logdir: Path, trained: dict, step: int = 320) -> Path:
+    """The fixture's checkpoint (written before checkpoints held their config) as today's
+    training writes it, holding the config ``trained``, saved as the checkpoint of ``step``
+    in ``logdir``."""
+    key = jax.random.PRNGKey(0)
+    target = checkpoint_tree(jax.eval_shape(DreamerAgent(config(), (64, 64, 3), 2, False).init,
+                                            key), key)
+    tree, meta = checkpoint.load(FIXTURE / "checkpoints" / CKPT, target)
+    path = checkpoint.checkpoint_path(logdir / "checkpoints", step)
+    path.parent.mkdir(exist_ok=True)
+    return checkpoint.atomic_write(path, checkpoint.encode(tree, {**meta, "config": trained}))
+
+
+def saved_config(logdir: Path) -> dict:
+    return json.loads((logdir / "config.json").read_text())
 
 
 # --- corrupt checkpoints ---------------------------------------------------------------------
@@ -140,6 +165,137 @@ def test_a_run_with_a_corrupt_newest_checkpoint_resumes_from_the_one_before(old_
 
 
 # --- another run's data, a second process ----------------------------------------------------
+
+
+def test_another_seed_does_not_resume_a_run(old_run, capsys):
+    before = snapshot(old_run)
+    code, _, err = run_train(capsys, old_run, "--seed", "1")
+    assert code == 2
+    line = one_line_error(err)
+    assert (f"{old_run} holds a run with a different config (train.seed: 0 -> 1); rerun with "
+            "--restart to move the old contents to") in line and "or use another --logdir" in line
+    assert snapshot(old_run) == before
+
+
+def test_only_the_resumable_train_keys_may_change_on_resume(old_run, capsys):
+    """train.steps and the cadences of logs, evaluations, checkpoints and videos may change;
+    the data and the train ratio (train.batch, ...) make another run."""
+    code, out, err = run_train(capsys, old_run, "train.steps=320", "train.eval_every=100",
+                               "train.log_every=20", "train.video_every=1000",
+                               "train.eval_episodes=2")
+    assert code == 0 and "nothing to train" in out, err
+    before = snapshot(old_run)
+    code, _, err = run_train(capsys, old_run, "train.steps=320", "train.batch=2")
+    assert code == 2 and "(train.batch: 4 -> 2)" in one_line_error(err)
+    assert snapshot(old_run) == before
+
+
+def test_the_seeds_of_one_process_keep_their_own_runs(tmp_path, capsys):
+    """--seeds 0,1 resumes each seed's own run; when one seed's directory holds another seed's
+    run, the process is refused before anything in any seed's directory is changed."""
+    for seed in (0, 1):
+        shutil.copytree(FIXTURE, tmp_path / f"s{seed}")
+        shutil.rmtree(tmp_path / f"s{seed}" / "checkpoints")
+        with_config(tmp_path / f"s{seed}", to_dict(config(f"train.seed={seed}")))
+        (tmp_path / f"s{seed}" / "config.json").unlink()
+    flags = [*FLAGS, "--seeds", "0,1", *OVERRIDES, "train.steps=320"]
+    code = train.main([*flags, "--logdir", str(tmp_path / "s{seed}")])
+    out, err = capsys.readouterr()
+    assert code == 0 and "nothing to train" in out, err
+    assert [saved_config(tmp_path / f"s{seed}")["train"]["seed"] for seed in (0, 1)] == [0, 1]
+    shutil.rmtree(tmp_path / "s1")
+    shutil.copytree(tmp_path / "s0", tmp_path / "s1")  # seed 0's run in seed 1's place
+    left = tmp_path / "s0" / "checkpoints" / f".{CKPT}.abc123{checkpoint.TEMP_SUFFIX}"
+    left.write_bytes(b"half a checkpoint")  # what seed 0's opening would remove
+    before = {seed: snapshot(tmp_path / f"s{seed}") for seed in (0, 1)}
+    code = train.main([*flags, "--logdir", str(tmp_path / "s{seed}")])
+    line = one_line_error(capsys.readouterr().err)
+    assert code == 2 and f"{tmp_path / 's1'} holds a run with a different config (train.seed: " \
+                         "0 -> 1)" in line
+    assert {seed: snapshot(tmp_path / f"s{seed}") for seed in (0, 1)} == before
+
+
+def test_a_missing_config_json_is_rebuilt_from_the_checkpoint_not_the_command(old_run, capsys):
+    trained = saved_config(old_run)
+    with_config(old_run, trained)
+    (old_run / "config.json").unlink()
+    before = snapshot(old_run)
+    code, _, err = run_train(capsys, old_run, "wm.kl_scale=0.5")
+    assert code == 2
+    assert (f"{old_run} holds a run with a different config (wm.kl_scale: "
+            f"{trained['wm']['kl_scale']!r} -> 0.5) (its config as {CKPT} holds it: config.json "
+            "is missing); rerun with --restart") in one_line_error(err)
+    assert snapshot(old_run) == before
+    code, out, err = run_train(capsys, old_run, "train.steps=320")
+    assert code == 0, err
+    assert (f"{old_run}: config.json is missing: the run's config is rebuilt from {CKPT}, the "
+            "config it was trained with") in out
+    assert config_changes(trained, saved_config(old_run)) == []
+
+
+def test_a_missing_config_json_with_checkpoints_that_predate_it_is_refused(old_run, capsys):
+    (old_run / "config.json").unlink()
+    before = snapshot(old_run)
+    code, _, err = run_train(capsys, old_run, "wm.kl_scale=0.5")
+    assert code == 2
+    assert (f"{old_run} has checkpoints ({CKPT}) but no config.json, and they were written "
+            "before checkpoints held their config, so the run's config cannot be told; nothing "
+            "was changed; restore config.json from a copy of the run, or rerun with --restart"
+            ) in one_line_error(err)
+    assert snapshot(old_run) == before
+
+
+def test_restart_refuses_a_run_that_would_train_nothing_before_moving_anything(old_run, capsys):
+    before = snapshot(old_run)
+    code = train.main([*FLAGS, "--logdir", str(old_run), "--restart",
+                       *replaced(OVERRIDES, "train.steps=100")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert ("train.steps=100 ends before the run's first update, at env step 240 (prefill ends "
+            "at env step 120") in one_line_error(err)
+    assert "so starting over with --restart, it would train nothing" in err
+    assert snapshot(old_run) == before and not (old_run / PREVIOUS_DIR).exists()
+
+
+def test_another_runs_newest_checkpoint_is_set_aside_and_the_run_resumes_from_its_own(
+        old_run, capsys):
+    """Told by its config: moved to checkpoints/foreign/ with one line naming it."""
+    other = saved_config(MJX_FIXTURE)
+    foreign = with_config(old_run, other, step=400)
+    code, out, err = run_train(capsys, old_run, "train.steps=320")
+    assert code == 0, err
+    moved = old_run / "checkpoints" / FOREIGN_DIR / foreign.name
+    line = next(line for line in out.splitlines() if line.startswith(str(foreign)))
+    assert line.startswith(f"{foreign} is not this run's checkpoint (its config differs from "
+                           "the run's: ")
+    assert line.endswith(f"): moved it to {moved}; the run resumes from its own newest "
+                         "checkpoint") and len(line) < 400
+    assert f"resuming from {CKPT}: env step 320" in out
+    assert moved.exists() and [p.name for _, p in checkpoint.list_checkpoints(
+        old_run / "checkpoints")] == [CKPT]
+
+
+def test_another_runs_checkpoint_from_before_configs_is_told_by_its_arrays(old_run, capsys):
+    """A checkpoint that holds no config and does not fit the model: the run falls back to its
+    own older one (said, the other moved aside); when it is the only one, a short error names
+    it and nothing is moved."""
+    foreign = checkpoint.checkpoint_path(old_run / "checkpoints", 400)
+    shutil.copy(MJX_FIXTURE / "checkpoints" / "ckpt-000000000240.ckpt", foreign)
+    code, out, err = run_train(capsys, old_run, "train.steps=320")
+    assert code == 0, err
+    moved = old_run / "checkpoints" / FOREIGN_DIR / foreign.name
+    assert (f"{foreign} is not this run's checkpoint (it does not fit this run's model: its "
+            "tree is not this run's: ") in out
+    assert f"moved it to {moved}; the run resumes from its own newest checkpoint" in out
+    assert f"resuming from {CKPT}: env step 320" in out and moved.exists()
+    (old_run / "checkpoints" / CKPT).unlink()
+    shutil.copy(moved, foreign)
+    code, _, err = run_train(capsys, old_run, "train.steps=320")
+    line = one_line_error(err)
+    assert code == 2 and line.startswith(f"error: checkpoint {foreign} does not fit this run ("
+                                         "its tree is not this run's: ")
+    assert line.endswith("is it another run's? move it out of the run's checkpoints/")
+    assert len(line) < 400 and foreign.exists()
 
 
 def test_episodes_of_another_config_without_a_checkpoint_are_refused(old_run, capsys):

@@ -31,6 +31,7 @@ from vsgjax.config.schema import (
     EPS_PLACEMENTS,
     LOOPS,
     PRECISIONS,
+    RESUMABLE_KEYS,
     SIZES,
     WEIGHT_DECAYS,
     BehaviourConfig,
@@ -54,7 +55,7 @@ from vsgjax.registry.tasks import PRESET_COLUMNS as DOMAINS
 
 __all__ = [
     "ACTOR_GRADS", "ALIGNMENTS", "CHOICES", "DOMAINS", "ENCODERS", "EPS_PLACEMENTS", "LOOPS",
-    "MODELS", "PRECISIONS", "RANGES", "SIZES", "VECTOR_SIZES",
+    "MODELS", "PRECISIONS", "RANGES", "RESUMABLE_KEYS", "SIZES", "VECTOR_SIZES",
     "WEIGHT_DECAYS", "BehaviourConfig", "Config", "ConfigError", "DrQConfig", "EnvConfig",
     "ModelConfig", "OptimConfig", "PrototypeConfig", "TrainConfig", "WorldModelConfig",
     "apply_overrides", "apply_values",

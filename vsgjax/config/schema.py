@@ -326,23 +326,28 @@ def _coerce(key: str, value, kind: type):
     return value
 
 
-RESUMABLE_SECTIONS = ("train",)  # the only config section a run may change when it resumes
+# The keys a run may change when it resumes: how far it trains, and how often it is logged,
+# evaluated, checkpointed and filmed, and over how many devices its batch is split. Every other
+# key (train.seed, the model, the env, the data and the train ratio) makes it another run.
+RESUMABLE_KEYS = ("train.steps", "train.log_every", "train.eval_every", "train.eval_episodes",
+                  "train.ckpt_every", "train.video_every", "train.devices")
 
 
 def config_changes(saved: dict, current: dict) -> list[str]:
-    """``section.key: saved -> current`` for every key outside :data:`RESUMABLE_SECTIONS`
-    where two :func:`to_dict` configs differ ([] when they agree): what makes a log directory
-    hold another run than ``current``."""
+    """``section.key: saved -> current`` for every key but :data:`RESUMABLE_KEYS` where two
+    :func:`to_dict` configs differ ([] when they agree): what makes a log directory hold
+    another run than ``current``."""
     changed, defaults = [], to_dict(Config())
     for section in sorted(set(current) | set(saved)):
-        if section in RESUMABLE_SECTIONS:
-            continue
         new, old = current.get(section), saved.get(section)
         if isinstance(new, dict) or isinstance(old, dict):
-            # a key the saved config predates counts as its default (e.g. wm.encoder)
-            new, old = new or {}, {**defaults.get(section, {}), **(old or {})}
+            # a key a saved config predates counts as its default (e.g. wm.encoder)
+            section_defaults = defaults.get(section, {})
+            new, old = {**section_defaults, **(new or {})}, {**section_defaults, **(old or {})}
             changed += [f"{section}.{key}: {old.get(key)!r} -> {new.get(key)!r}"
-                        for key in sorted(set(new) | set(old)) if old.get(key) != new.get(key)]
+                        for key in sorted(set(new) | set(old))
+                        if old.get(key) != new.get(key)
+                        and f"{section}.{key}" not in RESUMABLE_KEYS]
         elif new != old:
             changed.append(f"{section}: {old!r} -> {new!r}")
     return changed

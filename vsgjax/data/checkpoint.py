@@ -23,12 +23,13 @@ detection with no background threads, directory renames or extra dependencies.
 Atomicity and fallback: a crash while saving leaves at most a hidden ``.ckpt-*.tmp`` file,
 never a partial ``.ckpt``.  :func:`restore` tries checkpoints newest first; a file with a bad
 magic, length or CRC is reported with ``warnings.warn`` and the previous one is used.
-A checkpoint that is intact but does not fit the target is an error (a changed config),
-not a reason to fall back silently.
+A checkpoint that is intact but does not fit the target is an error naming it (another run's
+checkpoint, or a changed config), not a reason to fall back silently.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -40,6 +41,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
+import msgpack
 import numpy as np
 from flax import serialization
 
@@ -55,7 +57,15 @@ class CorruptCheckpointError(ValueError):
 
 
 class CheckpointMismatchError(ValueError):
-    """An intact checkpoint whose tree does not match the restore target."""
+    """An intact checkpoint whose tree does not match the restore target: ``reason`` says
+    where; ``path`` and ``step`` name the checkpoint (when restored from a directory)."""
+
+    def __init__(self, reason: str, path: Path | None = None, step: int | None = None):
+        message = reason if path is None else (
+            f"checkpoint {path} does not fit this run ({reason}); is it another run's? move it "
+            "out of the run's checkpoints/")
+        super().__init__(message)
+        self.reason, self.path, self.step = reason, path, step
 
 
 class WriteError(OSError):
@@ -184,6 +194,23 @@ def verify(path: str | os.PathLike) -> None:
     _payload(Path(path).read_bytes())
 
 
+def read_meta(path: str | os.PathLike) -> dict:
+    """The ``meta`` of one checkpoint file, after checking its header and CRC, without
+    decoding its arrays; raises CorruptCheckpointError (or OSError)."""
+    payload = _payload(Path(path).read_bytes())
+    # msgpack stores the payload's keys sorted ("leaves" before "meta"): the leaves are
+    # skipped unread, each of them held in the unpacker's buffer at most once
+    unpacker = msgpack.Unpacker(io.BytesIO(payload), raw=False, max_buffer_size=len(payload))
+    try:
+        for _ in range(unpacker.read_map_header()):
+            if unpacker.unpack() == "meta":
+                return json.loads(unpacker.unpack())
+            unpacker.skip()
+    except (ValueError, msgpack.UnpackException) as error:
+        raise CorruptCheckpointError(f"unreadable payload ({error})") from None
+    raise CorruptCheckpointError("the payload holds no meta")
+
+
 def _payload(data: bytes) -> bytes:
     """The payload of a checkpoint file's bytes, after checking header, length and CRC."""
     if len(data) < _HEADER.size:
@@ -206,11 +233,14 @@ def _fill(target: Any, paths: list[str], leaves: dict[str, Any]) -> Any:
     target_with_paths, treedef = jax.tree_util.tree_flatten_with_path(target)
     target_paths = [jax.tree_util.keystr(path) for path, _ in target_with_paths]
     if target_paths != list(paths):
-        missing = sorted(set(target_paths) - set(paths))
-        extra = sorted(set(paths) - set(target_paths))
+        pairs = zip(target_paths, paths, strict=False)  # the shorter list's length
+        first = next((i for i, (a, b) in enumerate(pairs) if a != b),
+                     min(len(paths), len(target_paths)))
+        saved = paths[first] if first < len(paths) else "none"
+        wanted = target_paths[first] if first < len(target_paths) else "none"
         raise CheckpointMismatchError(
-            f"checkpoint tree differs from target: missing {missing[:5]}, unexpected "
-            f"{extra[:5]} ({len(paths)} saved leaves, {len(target_paths)} target leaves)"
+            f"its tree is not this run's: {len(paths)} saved leaves, {len(target_paths)} "
+            f"wanted; leaf {first} is {saved}, wanted {wanted}"
         )
     filled = [
         _like(path, leaves[str(i)], like)
@@ -256,6 +286,8 @@ def restore(directory: str | os.PathLike, target: Any,
                 stacklevel=2,
             )
             continue
+        except CheckpointMismatchError as error:
+            raise CheckpointMismatchError(error.reason, path, step) from None
         return Checkpoint(step=step, tree=tree, meta=meta, path=path)
     return None
 

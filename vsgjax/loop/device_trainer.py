@@ -68,7 +68,7 @@ class DeviceTrainer(LoopDriver):
         self.config, self.out = configs[0], out
         self.program = DeviceProgram(self.config, make_device_task(self.config.env))
         self.program.check()
-        check_first_update(self.config, logdirs, self.program.first_update())
+        check_first_update(self.config, logdirs, self.program.first_update(), restart=restart)
         self.devices = resolve_devices(self.config)
         if len(configs) % self.devices:
             raise ConfigError(f"train.devices={self.devices} does not divide the {len(configs)} "
@@ -77,7 +77,8 @@ class DeviceTrainer(LoopDriver):
         state = jax.eval_shape(self.program.init, jax.random.PRNGKey(0))
         check_fits(self.config, len(configs) // self.devices,  # the seeds of one device
                    {"agent state": tree_bytes(state.agent), "replay": tree_bytes(state.replay)})
-        self.runs = open_runs(lambda c, d: RunWriter(c, d, restart=restart), configs, logdirs)
+        self.runs = open_runs(lambda c, d: RunWriter(c, d, restart=restart, prepare=False),
+                              configs, logdirs)
         try:
             self._compile(len(self.runs))
             self._sample = jax.jit(self.program.sample)

@@ -70,12 +70,16 @@ def check_seed_group(configs: list[Config], logdirs: list[Path]) -> None:
 
 def open_runs(make_run: Callable[[Config, Path], RunWriter], configs: list[Config],
               logdirs: list[Path]) -> list[RunWriter]:
-    """Each seed's run directory, opened (and locked) in turn; when one cannot be opened, the
-    ones before are unlocked again."""
+    """Each seed's run directory, opened (locked and checked) in turn, then, once every seed's
+    is, prepared (``make_run`` gives them unprepared): a refusal of any seed's directory comes
+    before anything in any of them is moved. When one cannot be opened, the ones before are
+    unlocked again."""
     runs = []
     try:
         for config, logdir in zip(configs, logdirs, strict=True):
             runs.append(make_run(config, logdir))
+        for run in runs:
+            run.prepare()
     except BaseException:
         unlock_runs(runs)
         raise
@@ -98,7 +102,7 @@ def restore_seeds(runs: list[RunWriter], restore: Restore) -> list[checkpoint.Ch
     seeds save one after the other; a run killed between two saves resumes all of them from
     the step before (``checkpoint.save`` then drops the newer one on the next save).
     """
-    restored = [restore(run, None) for run in runs]
+    restored = [restore_own(run, restore, None) for run in runs]
     if all(c is None for c in restored):
         return None
     missing = [run.seed for run, c in zip(runs, restored, strict=True) if c is None]
@@ -107,7 +111,7 @@ def restore_seeds(runs: list[RunWriter], restore: Restore) -> list[checkpoint.Ch
             f"seeds {group_label(missing)} have no checkpoint while the other seeds have one; "
             "the seeds of one process train in lockstep: train them in separate runs")
     step = min(c.step for c in restored)
-    restored = [c if c.step == step else restore(run, step)
+    restored = [c if c.step == step else restore_own(run, restore, step)
                 for run, c in zip(runs, restored, strict=True)]
     counters = [saved_counters(c) if c else None for c in restored]
     if any(c is None or c.step != step for c in restored) or any(
@@ -116,6 +120,31 @@ def restore_seeds(runs: list[RunWriter], restore: Restore) -> list[checkpoint.Ch
                           f"checkpoint to resume from (newest common step {step}); resume them "
                           "in separate runs")
     return restored
+
+
+def restore_own(run: RunWriter, restore: Restore,
+                max_step: int | None) -> checkpoint.Checkpoint | None:
+    """``restore(run, max_step)``, falling back past checkpoints that do not fit the run's
+    model: another run's, written before checkpoints held their config, so that only their
+    arrays tell. Once an older one fits, those are moved to ``checkpoints/foreign/`` (and
+    said, :attr:`RunWriter.foreign_moved`); when none fits, the newest one's error, nothing
+    moved."""
+    misfits: dict[Path, checkpoint.CheckpointMismatchError] = {}
+    while True:
+        try:
+            restored = restore(run, max_step)
+        except checkpoint.CheckpointMismatchError as error:
+            misfits[error.path] = error
+            older = [step for step, _ in run.checkpoints() if step < error.step]
+            max_step = older[-1] if older else None
+            if older:
+                continue
+            restored = None
+        if misfits and restored is None:
+            raise next(iter(misfits.values()))
+        run.set_aside_foreign({path: f"it does not fit this run's model: {error.reason}"
+                               for path, error in misfits.items()})
+        return restored
 
 
 class FirstUpdate(NamedTuple):
@@ -127,15 +156,18 @@ class FirstUpdate(NamedTuple):
     why: str
 
 
-def check_first_update(config: Config, logdirs: list[Path], first: FirstUpdate) -> None:
-    """ConfigError when a new run (no checkpoint in any of ``logdirs``) would end before its
-    first update: it would collect and evaluate, and train nothing."""
+def check_first_update(config: Config, logdirs: list[Path], first: FirstUpdate, *,
+                       restart: bool = False) -> None:
+    """ConfigError when a new run (no checkpoint in any of ``logdirs``, or ``restart``) would
+    end before its first update: it would collect and evaluate, and train nothing."""
     steps = config.train.steps
-    if steps >= first.smallest_steps or any(RunDir(d).checkpoints() for d in logdirs):
+    if steps >= first.smallest_steps or (
+            not restart and any(RunDir(d).checkpoints() for d in logdirs)):
         return
+    again = "starting over with --restart, " if restart else ""
     raise ConfigError(f"train.steps={steps} ends before the run's first update, at env step "
-                      f"{first.step} ({first.why}), so it would train nothing; the smallest "
-                      f"train.steps that trains is {first.smallest_steps}")
+                      f"{first.step} ({first.why}), so {again}it would train nothing; the "
+                      f"smallest train.steps that trains is {first.smallest_steps}")
 
 
 def saved_counters(restored: checkpoint.Checkpoint) -> Counters:

@@ -76,8 +76,9 @@ def first_update(config: Config) -> FirstUpdate:
 class SeedRun(RunWriter):
     """One seed of the host loop: its run directory, replay and evaluation envs."""
 
-    def __init__(self, config: Config, logdir: Path, *, restart: bool = False):
-        super().__init__(config, logdir, restart=restart)
+    def __init__(self, config: Config, logdir: Path, *, restart: bool = False,
+                 prepare: bool = True):
+        super().__init__(config, logdir, restart=restart, prepare=prepare)
         self._replay_rng = config.train.seed  # the restored stream when the run resumes
 
     @property
@@ -127,14 +128,14 @@ class HostTrainer(LoopDriver):
         self.config, self.out = configs[0], out
         self.devices = resolve_devices(self.config)
         mesh_shape(len(configs), self.devices, self.config.train.batch)  # the batch must split
-        check_first_update(self.config, logdirs, first_update(self.config))
+        check_first_update(self.config, logdirs, first_update(self.config), restart=restart)
         eval_envs = [make_envs(c.env, c.train.seed, self.config.env.eval_envs, eval=True)
                      for c in configs]
         try:
             self.agent = make_agent(self.config, eval_envs[0].spec)
             self._check_memory(len(configs), eval_envs[0].spec)
-            self.runs = open_runs(lambda c, d: SeedRun(c, d, restart=restart), configs,
-                                  logdirs)
+            self.runs = open_runs(lambda c, d: SeedRun(c, d, restart=restart, prepare=False),
+                                  configs, logdirs)
         except BaseException:
             for envs in eval_envs:
                 envs.close()

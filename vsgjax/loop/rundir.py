@@ -1,6 +1,7 @@
 """The run directory: its file names, and writing and reading them (one seed, one directory).
 
-    config.json          the resolved config (only ``train.*`` may change on resume)
+    config.json          the resolved config (only ``vsgjax.config.RESUMABLE_KEYS`` may change;
+                         rebuilt from the newest checkpoint when it is missing)
     metrics.jsonl        train/episode/eval scalars, one line per log step (and TensorBoard)
     scores.jsonl         the learning curve ``{"task", "method", "seed", "xs", "ys", "wall_s",
                          "cpu_s"}`` (the run's wall and CPU seconds at each evaluation)
@@ -8,8 +9,9 @@
     open_loop.jsonl      one line per evaluation of an agent with a world model: its open-loop
                          prediction errors per imagined step ``{"step", "obs_mse": [35],
                          "reward_mse": [35]}`` (:func:`open_loop_record`)
-    checkpoints/         ``ckpt-<env step>.ckpt`` (:mod:`vsgjax.data.checkpoint`); corrupt
-                         ones are moved to ``checkpoints/corrupt/``
+    checkpoints/         ``ckpt-<env step>.ckpt`` (:mod:`vsgjax.data.checkpoint`), each with
+                         the config it was trained with; corrupt ones are moved to
+                         ``checkpoints/corrupt/``, another run's to ``checkpoints/foreign/``
     episodes/            every finished training episode as MCAP (:mod:`vsgjax.data.replay`)
     videos/              eval and open-loop videos (image tasks)
     .lock                held by the training process (:mod:`vsgjax.loop.rundir_guard`)
@@ -34,12 +36,16 @@ from vsgjax.data import checkpoint
 from vsgjax.data.replay import EpisodeStore
 from vsgjax.loop.logger import Logger, truncate_metrics
 from vsgjax.loop.rundir_guard import (
+    FOREIGN_DIR,
     RunDirError,
     RunLock,
+    Survey,
     move_aside,
     remove_interrupted_writes,
     restart_hint,
+    set_aside,
     set_aside_corrupt,
+    survey_checkpoints,
 )
 from vsgjax.loop.schedule import Counters
 from vsgjax.outdir import make_output_dir
@@ -156,26 +162,23 @@ class RunWriter(RunDir):
 
     replay_steps = 0  # steps in the seed's replay (the trainer keeps it current)
 
-    def __init__(self, config: Config, logdir: Path, *, restart: bool = False):
-        """Lock the directory, then (``restart``) move its old contents aside, or check that
-        it holds this config's run and set its corrupt checkpoints aside; a first attempt
-        killed before its first checkpoint and evaluation is moved aside."""
+    def __init__(self, config: Config, logdir: Path, *, restart: bool = False,
+                 prepare: bool = True):
+        """Lock the directory and check, reading only, that it holds this config's run (or,
+        with ``restart``, nothing to check): every refusal comes here, before anything in it
+        is moved or written. Then (``prepare``, else the caller calls :meth:`prepare`) tidy
+        it for the run."""
         super().__init__(logdir)
-        self.config, self.seed = config, config.train.seed
+        self.config, self.seed, self.restart = config, config.train.seed, restart
         make_output_dir(self.logdir, "log directory")
         self.lock = RunLock(self.logdir)
         try:
-            self.moved_to = move_aside(self.logdir) if restart else None
-            self._check_config()
-            set_aside_corrupt(self.logdir, self.ckpt_dir)
-            self._check_resumable()
-            remove_interrupted_writes(self.logdir, self.ckpt_dir, self.episodes_dir,
-                                      self.path(VIDEOS_DIR))
-            self.attempt_moved_to = None if self.checkpoints() else self._move_killed_attempt()
+            self.survey = None if restart else self._check()
         except BaseException:
             self.lock.unlock()
             raise
-        self.store = EpisodeStore(self.episodes_dir)
+        self.moved_to = self.attempt_moved_to = None
+        self.foreign_moved: list[tuple[Path, Path, str]] = []  # (checkpoint, moved to, why)
         self.logger: Logger | None = None  # opened by open_logs
         self.scores: dict = {"xs": [], "ys": []}
         self.episodes = 0
@@ -183,16 +186,57 @@ class RunWriter(RunDir):
         self.episodes_moved_to: Path | None = None  # by load: those after the checkpoint
         self.window: list[dict] = []  # metrics of the updates since the last log
         self.window_episodes: list[dict] = []
+        if prepare:
+            self.prepare()
 
-    def _check_config(self) -> None:
-        """A logdir with data (checkpoints or episodes) keeps its model and env config; only
-        ``train.*`` may change on resume."""
+    @property
+    def config_from(self) -> Path | None:
+        """The checkpoint the run's config was rebuilt from (``config.json`` was missing)."""
+        return self.survey.config_from if self.survey else None
+
+    def prepare(self) -> None:
+        """(``restart``) move the old contents aside, or set the corrupt checkpoints and
+        those of another run aside; remove what killed writes left; a first attempt killed
+        before its first checkpoint and evaluation is moved aside."""
+        try:
+            if self.restart:
+                self.moved_to = move_aside(self.logdir)
+            else:
+                set_aside_corrupt(self.ckpt_dir, self.survey.corrupt)
+                self.set_aside_foreign(self.survey.foreign)
+            remove_interrupted_writes(self.logdir, self.ckpt_dir, self.episodes_dir,
+                                      self.path(VIDEOS_DIR))
+            self.attempt_moved_to = None if self.checkpoints() else self._move_killed_attempt()
+            self.store = EpisodeStore(self.episodes_dir)
+        except BaseException:
+            self.lock.unlock()
+            raise
+
+    def set_aside_foreign(self, foreign: dict[Path, str]) -> None:
+        """Move another run's checkpoints (path -> why) to ``checkpoints/foreign/``."""
+        moved = set_aside(self.ckpt_dir, FOREIGN_DIR, foreign)
+        self.foreign_moved += [(path, target, foreign[path]) for path, target in moved.items()]
+
+    def _check(self) -> Survey:
+        """Every refusal of a directory that holds another run, or no run to resume: corrupt
+        checkpoints only, the checkpoints of another run only, a config that cannot be told,
+        a different config, evaluations without a checkpoint. Reads only."""
+        survey = survey_checkpoints(self.logdir, self.ckpt_dir, self._saved_config())
+        if survey.config is not None and (self.checkpoints() or self.episode_paths()):
+            changed = config_changes(survey.config, to_dict(self.config))
+            if changed:
+                where = (f" (its config as {survey.config_from.name} holds it: config.json is "
+                         "missing)" if survey.config_from else "")
+                raise ConfigError(f"{self.logdir} holds a run with a different config ("
+                                  + "; ".join(changed) + f"){where}; {restart_hint(self.logdir)}")
+        self._check_resumable()
+        return survey
+
+    def _saved_config(self) -> dict | None:
+        """``config.json`` when the directory holds data to check it against, else None."""
         if not self.has_config() or not (self.checkpoints() or self.episode_paths()):
-            return
-        changed = config_changes(self.read_config_dict(), to_dict(self.config))
-        if changed:
-            raise ConfigError(f"{self.logdir} holds a run with a different config ("
-                              + "; ".join(changed) + f"); {restart_hint(self.logdir)}")
+            return None
+        return self.read_config_dict()
 
     def _check_resumable(self) -> None:
         """Training over evaluations that no checkpoint can resume would start the run over
@@ -288,8 +332,10 @@ class RunWriter(RunDir):
         self.write_scores()
 
     def save(self, env_steps: int, counters: Counters, tree: dict, **meta) -> None:
+        """A checkpoint of ``tree``; its meta holds the counters, the scores and the config
+        the run was trained with (which a resume must match)."""
         meta = {"counters": {**dataclasses.asdict(counters), "episodes": self.episodes},
-                "scores": self.scores, **meta}
+                "scores": self.scores, "config": to_dict(self.config), **meta}
         self.checkpoint_path = checkpoint.save(self.ckpt_dir, env_steps, tree, meta,
                                                keep=KEEP_CHECKPOINTS)
 

@@ -6,8 +6,11 @@ silently replaced, mixed with another or pruned of its only good data.
 * :func:`move_aside`: the old contents (``--restart``; a first attempt killed before its first
   checkpoint and evaluation), or the episodes a killed run wrote after its newest checkpoint,
   go to ``previous/<UTC time>/`` (process logs stay); nothing is deleted.
-* :func:`set_aside_corrupt`: a corrupt checkpoint goes to ``checkpoints/corrupt/`` (out of the
-  kept ones); when every checkpoint is corrupt, nothing is touched and the run is refused.
+* :func:`survey_checkpoints`: the run's config (``config.json``, else its newest checkpoint's),
+  its corrupt checkpoints and another run's (one whose config differs); when no checkpoint of
+  the run's own is left, or its config cannot be told, the run is refused, nothing touched.
+* :func:`set_aside_corrupt`, :func:`set_aside`: a corrupt checkpoint goes to
+  ``checkpoints/corrupt/``, another run's to ``checkpoints/foreign/`` (out of the kept ones).
 * :func:`remove_interrupted_writes`: the temporary files of writes that a killed process left
   unfinished (never renamed into place, so never data) are removed.
 """
@@ -19,13 +22,16 @@ import fcntl
 import os
 import warnings
 from pathlib import Path
+from typing import NamedTuple
 
+from vsgjax.config import config_changes
 from vsgjax.data import checkpoint
 
 LOCK_FILE = ".lock"
 PROCESS_LOG_SUFFIX = ".log"  # a launcher's log of the process writing the run: never moved
 PREVIOUS_DIR = "previous"  # ``--restart`` moves the old contents into previous/<UTC time>/
 CORRUPT_DIR = "corrupt"  # under checkpoints/
+FOREIGN_DIR = "foreign"  # under checkpoints/: another run's checkpoints
 RESTART_HINT = ("rerun with --restart to move the old contents to {previous}/ and start over, "
                 "or use another --logdir")
 
@@ -92,27 +98,74 @@ def move_aside(logdir: Path, entries: list[Path] | None = None) -> Path | None:
     return target
 
 
-def set_aside_corrupt(logdir: Path, ckpt_dir: Path) -> list[Path]:
-    """Move each corrupt checkpoint to ``checkpoints/corrupt/`` with a warning; returns where
-    they went. RunDirError, moving nothing, when every checkpoint is corrupt."""
-    found = [path for _, path in checkpoint.list_checkpoints(ckpt_dir)]
-    corrupt = {}
-    for path in found:
+class Survey(NamedTuple):
+    """What a run directory's checkpoints say about the run (read; nothing changed)."""
+
+    corrupt: dict[Path, str]  # a corrupt checkpoint -> what is wrong with it
+    foreign: dict[Path, str]  # another run's checkpoint -> how its config differs
+    config: dict | None  # the run's config: config.json's, else the newest checkpoint's
+    config_from: Path | None  # that checkpoint, when config.json is missing
+
+
+def survey_checkpoints(logdir: Path, ckpt_dir: Path, saved_config: dict | None) -> Survey:
+    """Read every checkpoint's header, CRC and meta, and tell the run's own from the corrupt
+    ones and from another run's (a checkpoint whose config differs from ``saved_config``,
+    the run's ``config.json``; when that is None, from the newest checkpoint's config).
+    RunDirError, nothing changed, when no checkpoint is left to resume from, or when there is
+    no ``config.json`` and no checkpoint holds its config (written before checkpoints did)."""
+    corrupt, configs = {}, {}
+    for _, path in checkpoint.list_checkpoints(ckpt_dir):
         try:
-            checkpoint.verify(path)
-        except checkpoint.CorruptCheckpointError as error:
+            configs[path] = checkpoint.read_meta(path).get("config")
+        except (checkpoint.CorruptCheckpointError, OSError) as error:
             corrupt[path] = str(error)
-    if found and len(corrupt) == len(found):
+    if corrupt and not configs:
         listed = "; ".join(f"{path}: {reason}" for path, reason in corrupt.items())
         raise RunDirError(f"every checkpoint of {logdir} is corrupt ({listed}); nothing was "
                           f"changed; {restart_hint(logdir)}")
-    moved = []
-    for path, reason in corrupt.items():
-        target = _unused(ckpt_dir / CORRUPT_DIR / path.name)
+    config, config_from = saved_config, None
+    if config is None and configs:  # checkpoints, and no config.json
+        config_from = next((path for path in reversed(configs) if configs[path]), None)
+        if config_from is None:
+            raise RunDirError(
+                f"{logdir} has checkpoints ({', '.join(p.name for p in configs)}) but no "
+                "config.json, and they were written before checkpoints held their config, so "
+                "the run's config cannot be told; nothing was changed; restore config.json "
+                f"from a copy of the run, or {restart_hint(logdir)}")
+        config = configs[config_from]
+    foreign = {}
+    for path, saved in configs.items():
+        changed = config_changes(config, saved) if config and saved else []
+        if changed:
+            more = f", and {len(changed) - 1} more" if len(changed) > 1 else ""
+            foreign[path] = f"its config differs from the run's: {changed[0]}{more}"
+    if configs and len(foreign) == len(configs):
+        path = next(reversed(foreign))
+        raise RunDirError(f"every checkpoint of {logdir} is another run's than its config.json "
+                          f"says ({path.name}: {foreign[path]}); nothing was changed; "
+                          f"{restart_hint(logdir)}")
+    return Survey(corrupt, foreign, config, config_from)
+
+
+def set_aside(ckpt_dir: Path, subdir: str, checkpoints: dict[Path, str]) -> dict[Path, Path]:
+    """Move ``checkpoints`` (path -> why) to ``checkpoints/<subdir>/``, out of the kept ones
+    (never overwriting a file there); returns where each went."""
+    moved = {}
+    for path in checkpoints:
+        target = _unused(ckpt_dir / subdir / path.name)
         target.parent.mkdir(exist_ok=True)
         path.rename(target)
-        warnings.warn(f"corrupt checkpoint {path} ({reason}) moved to {target}", stacklevel=2)
-        moved.append(target)
+        moved[path] = target
+    return moved
+
+
+def set_aside_corrupt(ckpt_dir: Path, corrupt: dict[Path, str]) -> dict[Path, Path]:
+    """Move each corrupt checkpoint (path -> what is wrong) to ``checkpoints/corrupt/`` with a
+    warning; returns where they went."""
+    moved = set_aside(ckpt_dir, CORRUPT_DIR, corrupt)
+    for path, target in moved.items():
+        warnings.warn(f"corrupt checkpoint {path} ({corrupt[path]}) moved to {target}",
+                      stacklevel=3)
     return moved
 
 
