@@ -14,9 +14,10 @@ from vsgjax.loop.rundir import CONFIG_FILE
 
 
 def config_difference(run: Run, logdir: Path) -> list[str]:
-    """What makes ``logdir/config.json`` another run than ``run``: every key outside ``train``
-    that differs from ``run.config()`` and ``train.seed``, as ``section.key: saved -> wanted``
-    (or why the file cannot be read); [] when there is no config.json or it agrees."""
+    """What makes ``logdir/config.json`` another run than ``run``: every key but the resumable
+    ones (:data:`vsgjax.config.RESUMABLE_KEYS`) that differs from ``run.config()``, the seed
+    included, as ``section.key: saved -> wanted`` (or why the file cannot be read); [] when
+    there is no config.json or it agrees."""
     path = Path(logdir) / CONFIG_FILE
     if not path.exists():
         return []
@@ -26,13 +27,7 @@ def config_difference(run: Run, logdir: Path) -> list[str]:
         return [f"{CONFIG_FILE} unreadable ({error})"]
     if not isinstance(saved, dict):
         return [f"{CONFIG_FILE} unreadable (not a JSON object)"]
-    wanted = _wanted_config(run)
-    changed = config_changes(saved, wanted)
-    train = saved.get("train")
-    seed = train.get("seed") if isinstance(train, dict) else None
-    if seed != wanted["train"]["seed"]:
-        changed.append(f"train.seed: {seed!r} -> {wanted['train']['seed']!r}")
-    return changed
+    return config_changes(saved, _wanted_config(run))
 
 
 @functools.cache
