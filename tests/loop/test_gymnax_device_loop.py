@@ -18,6 +18,7 @@ import pytest
 
 from tests.loop.test_resume_equal import SIGINT_EXIT, assert_trees_equal, records, run, stop_at
 from tests.support.overrides import replaced
+from vsgjax import evaluate
 from vsgjax.config import make_config
 from vsgjax.envs import make_device_task
 from vsgjax.episode_keys import VECTOR_KEY
@@ -132,3 +133,4 @@ def test_an_agent_trains_evaluates_and_resumes_to_the_uninterrupted_run(model, t
     assert all(np.isfinite(line["train/wm/loss"]) for line in lines if "train/wm/loss" in line)
     episodes = sorted((tmp_path / "whole" / "episodes").iterdir())
     assert len(episodes) == 160 // 4  # one file per finished episode (4 env steps each)
+    assert evaluate.main([str(tmp_path / "whole"), "--episodes", "4"]) == 0  # host evaluator
