@@ -28,7 +28,8 @@ from vsgjax.loop.device_trainer import DeviceTrainer
 TASK = "gymnax_memory_len"
 SHORT = ["env.memory_length=3", "env.num_envs=2", "train.length=8", "train.batch=3",
          "train.train_every=5", "train.prefill=32", "train.pretrain=2", "train.steps=160",
-         "train.eval_every=48", "train.eval_episodes=8", "train.ckpt_every=100"]
+         "train.eval_every=48", "train.eval_episodes=8", "train.ckpt_every=100",
+         "train.log_every=16"]  # a train record per call: the resumed run logs the same windows
 
 
 def make_program(*overrides: str, model: str = "vsg") -> DeviceProgram:

@@ -3,23 +3,26 @@
 The tasks of an on-device family (:mod:`vsgjax.envs.device_task`: MJX, gymnax) end every
 episode at the same agent step E (``task.episode_steps``: MJX's time limit, MemoryChain's
 L + 1), so the N envs of a run live their episodes in lockstep. One call of the compiled
-:meth:`DeviceProgram.episode` is K consecutive episodes of all N envs, each reset inside the
-program, with the updates due at the train ratio inside them (no host boundary anywhere)::
+:meth:`DeviceProgram.episode` is K consecutive episodes of all N envs (K E agent steps), with
+the updates due at the train ratio inside it (no host boundary anywhere)::
 
-    K x ( reset N envs -> [ train_every x (policy -> env step -> record) -> sample -> update ] x U
-                       -> (E mod train_every more steps) )
-      -> store the N rows of K episodes in the replay
+    reset N envs -> [ train_every x (restart ended envs -> policy -> env step -> record)
+                      -> sample -> update ] x U
+                 -> (K E mod train_every more steps) -> store the N rows of K episodes
 
-U = E // train_every updates per episode (the release's ratio, rounded down per episode when
-train_every does not divide E). While prefilling, the same call acts randomly and makes no
+U = K E // train_every updates per call (the release's ratio, rounded down per call when
+train_every does not divide K E). While prefilling, the same call acts randomly and makes no
 update (``train=False``).
 
 K = 1 for a family whose training sequences fit in one episode (MJX: ``train.length`` <= E + 1
-is required). A family whose episodes end before a sequence is full (its registry entry's
-``windows_cross_episodes``: MemoryChain's L + 1 steps) takes K = ceil(train.length / (E + 1)):
-a replay row holds K episodes back to back and a sequence is cut anywhere in it, across
-episode boundaries, where ``is_first`` resets the latent state in the world model's observe
-pass and the policy's carry (DreamerV3's replay of a continuous stream, cut into rows).
+is required), whose call has no restart step. A family whose episodes end before a sequence is
+full (its registry entry's ``windows_cross_episodes``: MemoryChain's L + 1 steps) takes the
+fewest K that hold a sequence and an update, K = max(ceil(train.length / (E + 1)),
+ceil(train_every / E)): an env whose episode ended restarts inside the call (``reset`` with
+its state's key), a replay row holds its K episodes back to back, and a sequence is cut
+anywhere in it, across episode boundaries, where ``is_first`` resets the latent state in the
+world model's observe pass and the policy's carry (DreamerV3's replay of a continuous stream,
+cut into rows).
 
 The replay is a ring of such rows in device memory (:mod:`vsgjax.data.replay.device`;
 M = the row batches that ``train.replay_capacity`` steps hold), from which each update
