@@ -112,6 +112,7 @@ class DeviceProgram:
 
     @property
     def updates_per_episode(self) -> int:
+        """E // train_every: the updates of a one-episode call (K = 1)."""
         return self.episode_steps // self.config.train.train_every
 
     @property
