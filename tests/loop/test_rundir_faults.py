@@ -563,10 +563,10 @@ def test_a_bad_value_is_one_line_naming_it_and_nothing_is_written(args, tmp_path
 
 
 @pytest.mark.parametrize("task", ["bbs_basic", "dmc_walker_walk", "atari_pong",
-                                  "mjx_cartpole_swingup"])
+                                  "mjx_cartpole_swingup", "gymnax_memory_len"])
 @pytest.mark.parametrize("model", ["vsg", "drqv2"])
 def test_the_debug_size_trains_within_its_steps_on_every_family(task, model):
-    if task.startswith("atari") and model == "drqv2":
+    if task.startswith(("atari", "gymnax")) and model == "drqv2":
         pytest.skip("DrQ-v2 acts in continuous action spaces only")
     config = make_config(task, model, "debug")
     if family_of(task).on_device:

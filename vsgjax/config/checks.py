@@ -14,7 +14,8 @@ import math
 from dataclasses import dataclass, fields
 
 from vsgjax.config.schema import Config, ConfigError, EnvConfig
-from vsgjax.registry.tasks import FAMILIES, device_families, family_of
+from vsgjax.registry import resolve
+from vsgjax.registry.tasks import FAMILIES, family_of
 
 # Seeds up to 2**30 leave room below 2**31 for the evaluation envs' offset and the env index.
 MAX_SEED = 2**30
@@ -78,7 +79,7 @@ RANGES = {
     "env.action_repeat": AT_LEAST_1, "env.time_limit": AT_LEAST_1, "env.image_size": AT_LEAST_1,
     "env.sticky": UNIT, "env.num_envs": AT_LEAST_1, "env.eval_envs": AT_LEAST_1,
     "env.flicker": Range(0, 1, open_high=True), "env.show_steps": AT_LEAST_0,
-    "env.noise_dims": AT_LEAST_0, "env.noise_scale": AT_LEAST_0,
+    "env.noise_dims": AT_LEAST_0, "env.noise_scale": AT_LEAST_0, "env.memory_length": AT_LEAST_1,
     "train.seed": Range(0, MAX_SEED), "train.steps": AT_LEAST_1, "train.batch": AT_LEAST_1,
     "train.length": Range(MIN_LENGTH), "train.train_every": AT_LEAST_1,
     "train.prefill": AT_LEAST_0, "train.replay_capacity": AT_LEAST_1,
@@ -89,11 +90,7 @@ RANGES = {
 # Numeric keys checked elsewhere (when the devices are known).
 CHECKED_AT_START = ("train.devices",)
 ATARI_OPTIONS = ("env.grayscale", "env.sticky")
-# The partially observed and noisy variants of the device tasks (vsgjax/envs/mjx/variants.py);
-# whether the keys of env.hide and env.show_keys are the task's is checked where it is built.
 BACKGROUND_OPTIONS = ("env.background", "env.background_dir")
-VARIANT_OPTIONS = ("env.flicker", "env.hide", "env.show_keys", "env.show_steps",
-                   "env.noise_dims", "env.noise_scale")
 
 
 def check_config(config: Config) -> None:
@@ -107,7 +104,7 @@ def check_config(config: Config) -> None:
     _check_starts(config)
     _check_warm_up(config)
     _check_atari_options(config)
-    _check_variant_options(config)
+    _check_family_options(config)
     _check_background_options(config)
     if config.ac.memoryless_starts and not config.ac.memoryless:
         raise ConfigError("ac.memoryless_starts=true without ac.memoryless; valid: "
@@ -157,7 +154,8 @@ def _check_horizon(config: Config) -> None:
 
 def _check_sequences(config: Config) -> None:
     train, steps = config.train, max_episode_steps(config)
-    if train.length > steps:
+    crosses = family_of(config.env.task).windows_cross_episodes  # the family checks its own
+    if train.length > steps and not crosses:
         raise ConfigError(
             f"train.length={train.length} is longer than an episode of {config.env.task} can be "
             f"({steps} stored steps with env.time_limit={config.env.time_limit} and "
@@ -199,24 +197,22 @@ def _check_atari_options(config: Config) -> None:
                               f"{config.env.task!r}: {key}={off}")
 
 
-def _check_variant_options(config: Config) -> None:
+def _check_family_options(config: Config) -> None:
+    """A family's own options (its ``options``) keep their defaults on every other family's
+    tasks; then the task's family checks its options (its ``check``)."""
     env, defaults = config.env, EnvConfig()
-    if not family_of(env.task).on_device:
-        for key in VARIANT_OPTIONS:
+    family = family_of(env.task)
+    for owner in FAMILIES.values():
+        if owner is family:
+            continue
+        for key in owner.options:
             name = key.partition(".")[2]
             value, default = getattr(env, name), getattr(defaults, name)
-            if value != default:
-                patterns = ", ".join(family.pattern for family in device_families())
-                raise ConfigError(f"{key}={value!r} is an option of the tasks that step on the "
-                                  f"device ({patterns}); valid for task {env.task!r}: "
-                                  f"{key}={default!r}")
-    if env.show_keys.strip() and env.show_steps < 1:
-        raise ConfigError(f"env.show_steps={env.show_steps} with env.show_keys="
-                          f"{env.show_keys!r}; valid: >= 1 (the agent steps the keys are shown, "
-                          "the reset observation being step 0)")
-    if env.show_steps and not env.show_keys.strip():
-        raise ConfigError(f"env.show_steps={env.show_steps} without env.show_keys; valid: "
-                          "env.show_steps=0, or env.show_keys=<comma-separated observation keys>")
+            if value != default and key not in family.options:
+                raise ConfigError(f"{key}={value!r} is an option of the {owner.pattern} tasks; "
+                                  f"valid for task {env.task!r}: {key}={default!r}")
+    if family.check:
+        resolve(family.check)(config)
 
 
 def _check_background_options(config: Config) -> None:

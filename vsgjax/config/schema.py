@@ -183,6 +183,9 @@ class EnvConfig:
     show_steps: int = 0  # agent steps show_keys are visible (the reset is step 0); 0 = off
     noise_dims: int = 0  # extra observation dims following Gaussian random walks from 0
     noise_scale: float = 0.1  # the std of the noise dims' increment per agent step
+    # gymnax_memory_len (vsgjax/envs/gymnax_tasks.py): agent steps between the context and
+    # the query (an episode is memory_length + 1 steps); gymnax's default
+    memory_length: int = 5
     # Distracting backgrounds of the dmc_ tasks (vsgjax/envs/backgrounds.py):
     background: str = "none"  # none, video, dots, noise or color
     background_dir: str = ""  # env.background=video: a folder of video files (>= 2)
@@ -205,7 +208,8 @@ class TrainConfig:
     ckpt_every: int = 1_000  # updates
     video_every: int = 100_000  # env steps; open-loop prediction and eval videos
     devices: int = 0  # devices the batch is sharded over (data parallel); 0: every visible one
-    loop: str = "auto"  # "device": the fully jitted loop (mjx_ tasks); "auto": device for mjx_
+    loop: str = "auto"  # "device": the fully jitted loop (mjx_, gymnax_ tasks); "auto": device
+    # for them
 
 
 @dataclass(frozen=True)

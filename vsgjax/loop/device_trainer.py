@@ -1,11 +1,13 @@
 """The driver of ``train.loop=device``: one call of the compiled program
 (:class:`~vsgjax.loop.device_program.DeviceProgram`) per iteration, the shared driver between.
 
-Each call is one episode of every env of every seed with the updates due inside it; between
-calls the driver writes the same run directory as the host loop (no videos: the MJX tasks have
-no pixels; the open-loop errors of an agent with a world model are computed inside the compiled
-evaluation, on its evaluation episodes). The checkpoint holds the whole program state (agent,
-device replay, PRNG key); the envs need none, since every call starts by resetting them.
+Each call is K episodes of every env of every seed with the updates due inside it (K = 1
+but for a family whose sequences cross episodes); between calls the driver writes the same run
+directory as the host loop, one episode file per finished episode (no videos: the device tasks
+have no pixels; the open-loop errors of an agent with a world model are computed inside the
+compiled evaluation, on its evaluation episodes). The checkpoint holds the whole program state
+(agent, device replay, PRNG key); the envs need none, since every episode starts by resetting
+them.
 """
 
 from __future__ import annotations
@@ -115,9 +117,12 @@ class DeviceTrainer(LoopDriver):
 
     def describe(self) -> str:
         program = self.program
-        what = (f"device loop: {self.config.env.num_envs} envs x {program.episode_steps} agent "
-                f"steps per call, {program.updates_per_episode} updates per call once trained, "
-                f"replay of {program.replay_episodes} episode batches")
+        episodes = program.episodes_per_call
+        what = (f"device loop: {self.config.env.num_envs} envs x "
+                + (f"{episodes} episodes of " if episodes > 1 else "")
+                + f"{program.episode_steps} agent steps per call, {program.updates_per_call} "
+                f"updates per call once trained, replay of {program.replay_episodes} "
+                + ("row" if episodes > 1 else "episode") + " batches")
         if not self.resumed:
             return f"starting a new run; {what}"
         return (f"resuming from {self.runs[0].checkpoint_path.name}: env step {self.env_steps}, "
@@ -132,7 +137,7 @@ class DeviceTrainer(LoopDriver):
 
     def _update_replay_steps(self) -> None:
         stored = np.asarray(self.state.replay.stored)
-        per_batch = self.config.env.num_envs * (self.program.episode_steps + 1)
+        per_batch = self.config.env.num_envs * self.program.row_steps
         for run, count in zip(self.runs, stored, strict=True):
             run.replay_steps = int(min(count, self.program.replay_episodes)) * per_batch
 
@@ -144,7 +149,7 @@ class DeviceTrainer(LoopDriver):
         return self.env_steps < max(self.config.train.prefill, 1)
 
     def step(self) -> None:
-        """One call of the compiled program: one episode of every env (and its updates)."""
+        """One call of the compiled program: K episodes of every env (and their updates)."""
         c = self.counters
         training = not self.prefilling
         if training and not self.schedule.training:
@@ -152,9 +157,9 @@ class DeviceTrainer(LoopDriver):
         started = time.monotonic()
         self.state, metrics, records = self._episode[training](self.state)
         records = jax.device_get(records)
-        c.agent_steps += self.config.env.num_envs * self.program.episode_steps
+        c.agent_steps += self.config.env.num_envs * self.program.agent_steps_per_call
         if training:
-            keep = self._take_metrics(jax.device_get(metrics), self.program.updates_per_episode)
+            keep = self._take_metrics(jax.device_get(metrics), self.program.updates_per_call)
             records = {k: v[keep] for k, v in records.items()}
         self._update_replay_steps()
         self._write_episodes(records)
@@ -193,13 +198,17 @@ class DeviceTrainer(LoopDriver):
         return keep
 
     def _write_episodes(self, records: dict) -> None:
-        """Every env's finished episode -> its seed's episodes/ and episode metrics."""
+        """Every env's finished episodes (a row ``[K (E + 1)]`` split into K) -> its seed's
+        episodes/ and episode metrics."""
+        steps = self.program.episode_steps + 1
         for i, run in enumerate(self.runs):
             for env in range(self.config.env.num_envs):
-                episode = {k: np.asarray(v[i, env]) for k, v in records.items()}
-                info = {"return": float(episode["reward"].sum()),
-                        "length": len(episode["reward"]) - 1}
-                run.on_episode(episode, info, self.env_steps, numbered=True)
+                for start in range(0, self.program.row_steps, steps):
+                    episode = {k: np.asarray(v[i, env, start:start + steps])
+                               for k, v in records.items()}
+                    info = {"return": float(episode["reward"].sum()),
+                            "length": len(episode["reward"]) - 1}
+                    run.on_episode(episode, info, self.env_steps, numbered=True)
 
     def log(self) -> None:
         """The train records, then each seed's ``gates/*`` line on a batch of its replay

@@ -27,6 +27,15 @@ class TaskFamily:
     stepped inside JAX.
     ``preset_column``: the column of the presets the family's tasks take (the paper's
     hyperparameter table has one per domain).
+    ``options``: the ``env.*`` keys only this family's tasks take (any other task refuses a
+    value other than the default); ``check``: ``"module:function"`` of ``(config) -> None``,
+    the family's checks of its options against the rest of the config (raises ConfigError),
+    run by :func:`vsgjax.config.check_config` before anything is built or written.
+    ``windows_cross_episodes``: a device family whose episodes end (terminate) before a
+    training sequence is full: the device loop stores several consecutive episodes per env in
+    one replay row and samples sequences across their boundaries, ``is_first`` resetting the
+    latent state (:mod:`vsgjax.loop.device_program`), so ``train.length`` is not bounded by
+    one episode.
     """
 
     prefix: str
@@ -45,6 +54,9 @@ class TaskFamily:
     # its episodes end before env.time_limit as a rule (Atari's game over), so when the first
     # episode ends is not known before training
     ends_early: bool = False
+    options: tuple[str, ...] = ()
+    check: str = ""
+    windows_cross_episodes: bool = False
 
     def owns(self, task: str) -> bool:
         return task.partition("_")[0] == self.prefix
@@ -64,7 +76,16 @@ FAMILIES: dict[str, TaskFamily] = {family.prefix: family for family in (
     TaskFamily("mjx", "mjx_<domain>_<task>",
                "DeepMind Control on MuJoCo MJX, vector observations, stepped on the device",
                "dmc", True, VECTOR, CONTINUOUS,
-               "vsgjax.envs.mjx:parse", "vsgjax.envs.mjx:build", same_tasks_as="dmc"),
+               "vsgjax.envs.mjx:parse", "vsgjax.envs.mjx:build", same_tasks_as="dmc",
+               options=("env.flicker", "env.hide", "env.show_keys", "env.show_steps",
+                        "env.noise_dims", "env.noise_scale"),
+               check="vsgjax.envs.mjx.options:check"),
+    TaskFamily("gymnax", "gymnax_<env>",
+               "gymnax's JAX environments (bsuite's MemoryChain), vector observations, stepped "
+               "on the device", "gymnax", True, VECTOR, DISCRETE,
+               "vsgjax.envs.gymnax_tasks:parse", "vsgjax.envs.gymnax_tasks:build",
+               options=("env.memory_length",), check="vsgjax.envs.gymnax_tasks:check",
+               windows_cross_episodes=True),
 )}
 
 DEFAULT_TASK = "bbs_basic"  # the paper's benchmark: what a config and the command line take

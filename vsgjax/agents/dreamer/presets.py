@@ -55,6 +55,25 @@ COLUMN = {
         "train.oversample_ends": True, "train.pretrain": 1,
         "train.steps": 200_000_000, "train.eval_every": 1_000_000, "train.eval_episodes": 1,
     },
+    # gymnax_ tasks (bsuite's MemoryChain): the release has no such column. The model and loss
+    # settings are Atari's (DreamerV2's discrete-action column), the counts fit short episodes
+    # of vector observations one decision per step (docs/gymnax.md, docs/deviations.md).
+    "gymnax": {
+        "env.action_repeat": 1, "env.time_limit": 1000,
+        "model.deter": 600, "model.hidden": 600,
+        "wm.cnn_depth": 48, "wm.mlp_layers": 4, "wm.mlp_units": 400,
+        "wm.reward_layers": 4, "wm.discount_layers": 4,
+        "wm.kl_scale": 0.1, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
+        "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.4, "wm.gate_free": 0.1,
+        "wm.lr": 2e-4, "wm.discount_head": True, "wm.discount_scale": 5.0,
+        "wm.reward_scale": 1.0, "wm.reward_tanh": True, "wm.weight_decay": 1e-6,
+        "ac.actor_lr": 4e-5, "ac.critic_lr": 1e-4, "ac.gamma": 0.999, "ac.entropy": 1e-3,
+        "ac.actor_grad": "reinforce",
+        "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
+        "train.batch": 16, "train.train_every": 5, "train.prefill": 5000,
+        "train.oversample_ends": False, "train.pretrain": 100,
+        "train.steps": 500_000, "train.eval_every": 10_000, "train.eval_episodes": 100,
+    },
 }
 
 SIZE = {

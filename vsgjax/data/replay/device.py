@@ -1,8 +1,11 @@
 """The device loop's replay: a ring of whole episodes in device memory, pure JAX.
 
-``[M, N, E + 1, ...]`` per key (M episode batches of N envs, E + 1 stored steps each); a window
-is cut from one stored episode at a uniform start, so it never crosses an episode boundary, and
-only finished episodes are sampled (as the host replay, :mod:`vsgjax.data.replay.buffer`).
+``[M, N, T, ...]`` per key (M batches of N envs' rows of T stored steps each: one episode of
+E + 1 steps, or K episodes back to back for a family whose sequences cross episodes,
+:mod:`vsgjax.loop.device_program`); a window is cut from one stored row at a uniform start, so
+it never crosses a row (with one episode a row, never an episode boundary; across K episodes,
+``is_first`` marks where one starts), and only finished rows are sampled (as the host replay
+samples finished episodes, :mod:`vsgjax.data.replay.buffer`).
 """
 
 from __future__ import annotations

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -172,6 +173,16 @@ class MjxTask:
     @property
     def action_dim(self) -> int:
         return int(self.physics.mj.nu)
+
+    @property
+    def discrete(self) -> bool:
+        return False
+
+    @property
+    def episode_steps(self) -> int:
+        """Agent steps per episode: every episode is truncated at the time limit (the last
+        agent step may repeat the action fewer times)."""
+        return math.ceil(self.time_limit / self.action_repeat)
 
     @property
     def obs_keys(self) -> tuple[str, ...]:

@@ -195,6 +195,14 @@ class VariantTask:
         return self.task.time_limit
 
     @property
+    def discrete(self) -> bool:
+        return False
+
+    @property
+    def episode_steps(self) -> int:
+        return self.task.episode_steps
+
+    @property
     def obs_keys(self) -> tuple[str, ...]:
         """The task's keys, then ``noise`` when ``noise_dims`` > 0."""
         return self.task.obs_keys + ((NOISE_KEY,) if self.noise_dims else ())

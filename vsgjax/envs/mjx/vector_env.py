@@ -1,6 +1,8 @@
 """N MJX envs behind gymnasium's vector-env interface, for the host loop (``train.loop=host``).
 
-:class:`MjxVectorEnv` is a ``gymnasium.vector.VectorEnv`` over one :class:`MjxTask`, so
+:class:`MjxVectorEnv` is a ``gymnasium.vector.VectorEnv`` over one :class:`MjxTask` (or any
+on-device task, :mod:`vsgjax.envs.device_task`: a discrete one takes ``Discrete(n)`` actions,
+as ``python -m vsgjax.evaluate`` runs a ``gymnax_`` checkpoint), so
 :class:`vsgjax.data.collect.EnvBatch`, and with it the host loop's collector, trainer and evaluator,
 drives MJX tasks as it drives gymnasium envs. Each ``step`` call is one jitted ``vmap`` of
 ``task.step`` over all N envs (one device call, one transfer each way), not N Python envs.
@@ -62,8 +64,9 @@ class MjxVectorEnv(gymnasium.vector.VectorEnv):
         dim = sum(shape[0] for shape, _ in task.observation_spec().values())
         self.single_observation_space = gymnasium.spaces.Dict(
             {VECTOR_KEY: gymnasium.spaces.Box(-np.inf, np.inf, (dim,), np.float32)})
-        self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (task.action_dim,),
-                                                        np.float32)
+        self.single_action_space = (
+            gymnasium.spaces.Discrete(task.action_dim) if task.discrete
+            else gymnasium.spaces.Box(-1.0, 1.0, (task.action_dim,), np.float32))
         self.observation_space = gymnasium.vector.utils.batch_space(
             self.single_observation_space, self.num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space,
@@ -89,10 +92,13 @@ class MjxVectorEnv(gymnasium.vector.VectorEnv):
         """Step every env (envs whose episode just ended reset and ignore their action)."""
         if self._state is None:
             raise RuntimeError("call reset() before step()")
-        actions = np.asarray(actions, np.float32)
+        actions = np.asarray(actions, np.int64 if self.task.discrete else np.float32)
         if actions.shape != self.action_space.shape:
-            raise ValueError(f"actions must have shape {self.action_space.shape} (envs, action "
-                             f"dim), got {actions.shape}")
+            raise ValueError(f"actions must have shape {self.action_space.shape} (envs"
+                             + ("" if self.task.discrete else ", action dim")
+                             + f"), got {actions.shape}")
+        if self.task.discrete:  # the task steps with the agent's one-hot actions
+            actions = np.eye(self.task.action_dim, dtype=np.float32)[actions]
         if self._autoreset:
             self._state, outputs = _reset(self.task, self._state.key)
         else:
