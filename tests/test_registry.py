@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from vsgjax.config import ConfigError, make_config
+from vsgjax.envs import parse_task
 from vsgjax.registry.agents import AGENTS, MODELS, agent_entry, dreamer_models, gated_models
 from vsgjax.registry.tasks import FAMILIES, TaskError, family_of
 
@@ -88,10 +89,39 @@ def test_every_entry_resolves_and_names_real_code():
 
 
 def test_an_unknown_model_lists_the_registered_ones():
-    with pytest.raises(ValueError, match="unknown model 'dreamerv4'; valid: dreamerv1"):
+    with pytest.raises(ValueError, match="unknown model 'dreamerv4' .*; valid: dreamerv1"):
         agent_entry("dreamerv4")
     with pytest.raises(ConfigError, match="drqv2"):
         make_config("bbs_basic", "dreamerv4", "debug")
+
+
+@pytest.mark.parametrize("kind, call, hint", [
+    ("model", lambda: agent_entry("vgs"), "(did you mean 'vsg'?)"),
+    ("model", lambda: make_config("bbs_basic", "dreamer_v2", "debug"),
+     "(did you mean 'dreamerv2'?)"),
+    ("family", lambda: make_config("dcm_walker_walk", "vsg", "debug"),
+     "(did you mean 'dmc_walker_walk'?)"),
+    ("task", lambda: parse_task("mjx_cartpole_swingpu"), "(did you mean 'mjx_cartpole_swingup'?)"),
+    ("task", lambda: parse_task("dmc_walker_wlak"), "(did you mean 'dmc_walker_walk'?)"),
+    ("task", lambda: parse_task("bbs_basik"), "(did you mean 'bbs_basic'?)"),
+    ("key", lambda: make_config("bbs_basic", "vsg", "debug", ["wm.kl_scal=1"]),
+     "(did you mean 'wm.kl_scale'?)"),
+    ("section", lambda: make_config("bbs_basic", "vsg", "debug", ["w.kl_scale=1"]),
+     "(did you mean 'wm.kl_scale'?)"),
+])
+def test_a_misspelt_name_gets_a_did_you_mean(kind, call, hint):
+    with pytest.raises(ValueError) as error:
+        call()
+    assert hint in str(error.value)
+
+
+@pytest.mark.parametrize("call", [lambda: agent_entry("transformer"),
+                                  lambda: make_config("foo_walker_walk", "vsg", "debug"),
+                                  lambda: parse_task("mjx_humanoid_run")])
+def test_a_name_far_from_every_valid_one_gets_no_guess(call):
+    with pytest.raises(ValueError) as error:
+        call()
+    assert "did you mean" not in str(error.value)
 
 
 def test_a_discrete_task_refuses_a_continuous_only_agent_naming_model_task_and_why():

@@ -206,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
           f"({notes['precision']}) loop={loop}", flush=True)
     print(f"device: {device_line()}\n{allocator_line()}\nlogdir: "
           + ", ".join(map(str, logdirs)), flush=True)
+    print(f"overrides: {' '.join(overrides) if overrides else 'none (the presets as they are)'}",
+          flush=True)
     try:
         trainer = make_trainer(configs, logdirs, progress=not args.no_progress,
                                restart=args.restart)

@@ -196,7 +196,8 @@ def test_training_writes_every_artefact(runs, task):
     assert lines[0].startswith(f"vsgjax train: task={task} model=vsg size=debug")
     assert lines[1].startswith("device: cpu") and lines[2].startswith("host allocator: ")
     assert lines[3] == f"logdir: {logdir}"
-    assert lines[4] == "starting a new run"
+    assert lines[4] == "overrides: " + " ".join(TASKS[task])
+    assert lines[5] == "starting a new run"
     config = json.loads((logdir / "config.json").read_text())
     assert config["env"]["task"] == task and config["size"] == "debug"
     records = read_jsonl(logdir / "metrics.jsonl")

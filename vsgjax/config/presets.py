@@ -23,6 +23,7 @@ from vsgjax.config.schema import (
     parse_overrides,
 )
 from vsgjax.registry.agents import AGENTS, DEFAULT_MODEL, MODELS, AgentEntry, agent_entry
+from vsgjax.registry.names import did_you_mean
 from vsgjax.registry.tasks import (
     DEFAULT_TASK,
     FAMILIES,
@@ -55,7 +56,8 @@ def preset_layers(entry: AgentEntry, task: str, size: str) -> list[dict]:
 
 def _check_name(kind: str, value: str, valid: Sequence[str]) -> None:
     if value not in valid:
-        raise ConfigError(f"unknown {kind} {value!r}; valid: {', '.join(valid)}")
+        raise ConfigError(f"unknown {kind} {value!r}{did_you_mean(value, valid)}; valid: "
+                          f"{', '.join(valid)}")
 
 
 def check_agent_fits(entry: AgentEntry, family: TaskFamily, task: str, size: str) -> None:

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, replace
 
 from vsgjax.registry.agents import DEFAULT_MODEL
+from vsgjax.registry.names import did_you_mean
 from vsgjax.registry.tasks import DEFAULT_TASK, family_of
 
 SIZES = ("paper", "small", "cpu", "debug")
@@ -270,11 +271,13 @@ def _split_key(key: str) -> tuple[str, str]:
     sections = _sections()
     section, sep, name = key.partition(".")
     if not sep or section not in sections:
-        raise ConfigError(f"unknown config key {key!r}; sections: {', '.join(sections)}")
+        hint = did_you_mean(key, [f"{s}.{name}" for s in sections]) if sep else ""
+        raise ConfigError(f"unknown config key {key!r}{hint}; sections: {', '.join(sections)}")
     valid = [f.name for f in fields(sections[section])]
     if name not in valid:
-        raise ConfigError(
-            f"unknown config key {key!r}; valid keys of {section!r}: {', '.join(valid)}")
+        hint = did_you_mean(name, valid).replace("'", f"'{section}.", 1)
+        raise ConfigError(f"unknown config key {key!r}{hint}; valid keys of {section!r}: "
+                          f"{', '.join(valid)}")
     return section, name
 
 

@@ -30,6 +30,7 @@ import numpy as np  # noqa: E402
 
 from vsgjax.envs.backgrounds import composite, make_background  # noqa: E402
 from vsgjax.envs.spec import TaskError  # noqa: E402
+from vsgjax.registry.names import did_you_mean  # noqa: E402
 
 CAMERA_BY_DOMAIN = {"quadruped": 2}
 SHADOW_MAP_SIZE = 512  # MuJoCo's default (2048 in the suite's models) costs 2x on a CPU renderer
@@ -113,8 +114,10 @@ def parse(task: str, rest: str) -> tuple[str, str]:
     for domain, name in pairs:
         if f"{domain}_{name}" == rest:
             return domain, name
-    raise TaskError(f"unknown DMC task {task!r}; valid: "
-                    + ", ".join(f"{task.partition('_')[0]}_{d}_{t}" for d, t in pairs))
+    family = task.partition("_")[0]
+    hint = did_you_mean(rest, [f"{d}_{t}" for d, t in pairs], prefix=f"{family}_")
+    raise TaskError(f"unknown DMC task {task!r}{hint}; valid: "
+                    + ", ".join(f"{family}_{d}_{t}" for d, t in pairs))
 
 
 def build(args: tuple[str, str], cfg, seed: int, eval: bool) -> gymnasium.Env:

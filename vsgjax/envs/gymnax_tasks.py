@@ -18,7 +18,7 @@ gymnax keeps bsuite's layout as a flat ``[3]`` vector where bsuite's numpy envir
 (``tests/envs/test_gymnax_tasks.py`` steps both). Only ``memory_len`` is wired: the device loop
 runs the N envs of a run in lockstep, which needs episodes of one fixed length, and MemoryChain
 is gymnax's only such task with a memory gap; a gymnax env whose episodes vary in length
-(CartPole, the MinAtar games) needs per-env resets inside the loop (docs/gymnax.md).
+(CartPole, the MinAtar games) needs per-env resets inside the loop (docs/mjx.md).
 
 The interface the device loop steps is :mod:`vsgjax.envs.device_task`; this module is the
 family's registry entry (:mod:`vsgjax.registry.tasks`): ``parse``, ``build`` and ``check``.

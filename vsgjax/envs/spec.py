@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from vsgjax.observations import ObsSpec, obs_spec
+from vsgjax.registry.names import did_you_mean
 from vsgjax.registry.tasks import TaskError
 
 __all__ = ["EVAL_SEED_OFFSET", "EnvSpec", "TaskError", "one_of"]
@@ -16,7 +17,8 @@ def one_of(task: str, name: str, valid, what: str) -> str:
     """``name`` if it is in ``valid``, else a TaskError listing the valid task names."""
     if name not in valid:
         family = task.partition("_")[0]
-        raise TaskError(f"unknown {what} in {task!r}; valid: "
+        hint = did_you_mean(name, valid, prefix=f"{family}_")
+        raise TaskError(f"unknown {what} in {task!r}{hint}; valid: "
                         + ", ".join(f"{family}_{v}" for v in valid))
     return name
 

@@ -96,6 +96,7 @@ class DeviceTrainer(LoopDriver):
         episode, self._pretrain, self._evaluate = jitted_programs(self.program, seeds,
                                                                   self.devices)
         self._episode = dict(episode)
+        self._called: set[bool] = set()  # the calls compiled so far (prefill: False)
 
     def _restore(self) -> tuple[LoopState, Counters, bool]:
         def restore(run: RunWriter, max_step: int | None):
@@ -154,6 +155,13 @@ class DeviceTrainer(LoopDriver):
         training = not self.prefilling
         if training and not self.schedule.training:
             self._start_training()
+        if training not in self._called:
+            self._called.add(training)
+            self.progress.write(f"compiling the {'training' if training else 'prefill'} call: "
+                                "policy, physics, replay"
+                                f"{' and updates' if training else ''} in one XLA program "
+                                "(minutes on a CPU the first time; the compilation cache keeps "
+                                "it for later runs)")
         started = time.monotonic()
         self.state, metrics, records = self._episode[training](self.state)
         records = jax.device_get(records)
@@ -169,8 +177,8 @@ class DeviceTrainer(LoopDriver):
     def _start_training(self) -> None:
         train = self.config.train
         self.schedule.start_training()
-        self.progress.write(f"prefill done at env step {self.env_steps}; compiling the "
-                            f"training call, {train.pretrain} pretraining updates")
+        self.progress.write(f"prefill done at env step {self.env_steps}; "
+                            f"{train.pretrain} pretraining updates")
         if train.pretrain:
             self.state, metrics = self._pretrain(self.state)
             self._take_metrics(jax.device_get(metrics), train.pretrain)

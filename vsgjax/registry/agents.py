@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from vsgjax.registry.names import did_you_mean
 from vsgjax.registry.tasks import CONTINUOUS, DISCRETE, IMAGE, VECTOR
 
 # Config sections every agent reads; an agent names the others it reads in ``sections``.
@@ -134,7 +135,8 @@ DEFAULT_MODEL = "vsg"  # the paper's model: what a config and the command line t
 def agent_entry(name: str) -> AgentEntry:
     """The entry of a ``--model`` name; ValueError listing the valid names."""
     if name not in AGENTS:
-        raise ValueError(f"unknown model {name!r}; valid: {', '.join(MODELS)}")
+        raise ValueError(f"unknown model {name!r}{did_you_mean(name, MODELS)}; valid: "
+                         f"{', '.join(MODELS)}")
     return AGENTS[name]
 
 

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from vsgjax.registry.names import did_you_mean
+
 IMAGE, VECTOR = "image", "vector"  # what a family's observations are
 CONTINUOUS, DISCRETE = "continuous", "discrete"  # how its tasks act
 
@@ -103,7 +105,8 @@ def family_of(task: str) -> TaskFamily:
     """
     prefix, sep, rest = task.partition("_")
     if not sep or not rest or prefix not in FAMILIES:
-        raise TaskError(f"unknown task {task!r}; valid patterns: {patterns()}")
+        hint = did_you_mean(prefix, FAMILIES, suffix=f"_{rest}") if sep and rest else ""
+        raise TaskError(f"unknown task {task!r}{hint}; valid patterns: {patterns()}")
     return FAMILIES[prefix]
 
 

@@ -57,7 +57,7 @@ COLUMN = {
     },
     # gymnax_ tasks (bsuite's MemoryChain): the release has no such column. The model and loss
     # settings are Atari's (DreamerV2's discrete-action column), the counts fit short episodes
-    # of vector observations one decision per step (docs/gymnax.md, docs/deviations.md).
+    # of vector observations one decision per step (docs/mjx.md, docs/deviations.md).
     "gymnax": {
         "env.action_repeat": 1, "env.time_limit": 1000,
         "model.deter": 600, "model.hidden": 600,

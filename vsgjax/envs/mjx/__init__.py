@@ -37,6 +37,7 @@ with contextlib.redirect_stdout(io.StringIO()):
 from vsgjax.envs.mjx import cartpole, cheetah, finger, hopper, pendulum, reacher, walker
 from vsgjax.envs.mjx.core import MjxState, MjxTask, TaskSpec, physics
 from vsgjax.envs.spec import TaskError
+from vsgjax.registry.names import did_you_mean
 
 __all__ = ["MjxState", "MjxTask", "TaskSpec", "make_mjx_task", "mjx_task_names",
            "parse_mjx_task", "physics"]
@@ -54,7 +55,9 @@ def mjx_task_names() -> list[str]:
 def parse_mjx_task(name: str) -> TaskSpec:
     """The spec named ``name``; a TaskError listing every valid mjx task name otherwise."""
     if name not in SPECS:
-        raise TaskError(f"unknown MJX task {name!r}; valid: {', '.join(SPECS)}")
+        hint = did_you_mean(name.removeprefix("mjx_"), [s.removeprefix("mjx_") for s in SPECS],
+                            prefix="mjx_")
+        raise TaskError(f"unknown MJX task {name!r}{hint}; valid: {', '.join(SPECS)}")
     return SPECS[name]
 
 
