@@ -14,7 +14,8 @@ The gate columns are the mean over seeds of each seed's last ``gates/open``,
 (VSG and SVSG log them; others read —), beside ``1 / open``, the closed run that independent
 gates would give. With ``holding_gap = N`` the table adds the columns that show holding: the
 closed runs' 90th percentile and max beside the geometric null's, GateL0RD's two other rates
-and the fraction of units closed across ``N`` steps (``gates/holding_N``).
+and the fraction of units closed across ``N`` steps (``gates/holding_N``) beside the chance of
+that for independent gates (``gates/null_holding_N``).
 """
 
 from __future__ import annotations
@@ -113,16 +114,17 @@ def read_panels(entries, problems: list[str] | None = None) -> list[Panel]:
     return panels
 
 
-def holding_key(gap: int) -> str:
-    """The logged fraction of units closed across ``gap`` steps."""
-    return f"gates/holding_{gap}"
+def holding_keys(gap: int) -> tuple[str, str]:
+    """The logged fractions of units closed across ``gap`` steps: measured, and for
+    independent gates with the same open rate."""
+    return f"gates/holding_{gap}", f"gates/null_holding_{gap}"
 
 
 def gate_keys(holding_gap: int | None) -> tuple[str, ...]:
     """The ``gates/*`` keys the table reads."""
     if holding_gap is None:
         return GATE_KEYS
-    return (*GATE_KEYS, *(key for _, key in HOLDING_COLUMNS), holding_key(holding_gap))
+    return (*GATE_KEYS, *(key for _, key in HOLDING_COLUMNS), *holding_keys(holding_gap))
 
 
 def read_holding_gap(value, problems: list[str] | None = None) -> int | None:
@@ -259,7 +261,7 @@ def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
              cell("gates/prob_post_std"), cell("gates/kl")]
     if data.holding_gap is None:
         return cells
-    holding = [key for _, key in HOLDING_COLUMNS] + [holding_key(data.holding_gap)]
+    holding = [key for _, key in HOLDING_COLUMNS] + list(holding_keys(data.holding_gap))
     return cells + [fmt(stats[key].mean, HOLDING_DIGITS.get(key, 2))
                     + (f" (n={stats[key].n})" if 0 < stats[key].n < seeds else "")
                     for key in holding]
@@ -295,7 +297,7 @@ def panels_markdown(data: PanelsData) -> str:
         "gate probability std", "gate KL (nats, Σ units)"]
     if data.holding_gap is not None:
         header += [name for name, _ in HOLDING_COLUMNS]
-        header.append(f"units closed across {data.holding_gap} steps")
+        header += [f"units closed across {data.holding_gap} steps", "if independent"]
     rows = [header] + [[panel.title, method] + value_cells(data, panel.task, method)
                        + gate_cells(data, panel.task, method)
                        for panel in data.panels for method in panel.methods]
@@ -319,7 +321,9 @@ def panels_markdown(data: PanelsData) -> str:
                  "the median longest of as many runs; both capped at the training window); "
                  "GateL0RD's rates of steps with any unit open and of units opened at least "
                  "once in a sequence; and the fraction of units that stayed closed for "
-                 f"{data.holding_gap} steps or more (`{holding_key(data.holding_gap)}`).")
+                 f"{data.holding_gap} steps or more (`{holding_keys(data.holding_gap)[0]}`), "
+                 "beside the chance that independent gates with the same open rate do so "
+                 f"within the training window (`{holding_keys(data.holding_gap)[1]}`).")
     verdicts = []
     if data.at:
         last = data.at[-1]

@@ -311,7 +311,7 @@ def test_holding_columns_follow_the_gate_columns_when_a_gap_is_given(tmp_path):
     holding = {"gates/closed_run_p90": 12.0, "gates/null_run_p90": 7.0,
                "gates/closed_run_max": 40.0, "gates/null_run_max": 9.0,
                "gates/steps_any_open": 0.5, "gates/units_ever_open": 0.75,
-               "gates/holding_20": 0.25}
+               "gates/holding_20": 0.25, "gates/null_holding_20": 0.0}
     for seed, run in enumerate(runs_of(experiment, CARTPOLE, "VSG-hidevel")):
         path = run.logdir(tmp_path) / "metrics.jsonl"
         line = {"step": 100_000, **{k: v + seed for k, v in holding.items()}}
@@ -326,10 +326,10 @@ def test_holding_columns_follow_the_gate_columns_when_a_gap_is_given(tmp_path):
     rows = table_rows(section.markdown)
     assert rows[("hidden", "VSG-hidevel")] == plain[("hidden", "VSG-hidevel")] + [
         "12.5 (n=2)", "7.5 (n=2)", "40.5 (n=2)", "9.5 (n=2)", "1.00 (n=2)", "1.25 (n=2)",
-        "0.75 (n=2)"]
-    assert rows[("hidden", "DreamerV2-hidevel")][-7:] == ["—"] * 7
+        "0.75 (n=2)", "0.50 (n=2)"]
+    assert rows[("hidden", "DreamerV2-hidevel")][-8:] == ["—"] * 8
     header = [line for line in section.markdown.splitlines() if line.startswith("| ")][0]
-    assert header.rstrip(" |").endswith("units closed across 20 steps")
+    assert header.rstrip(" |").endswith("units closed across 20 steps | if independent")
     assert "`gates/holding_20`" in section.markdown
     bad = dataclasses.replace(experiment, figures=({**experiment.figures[0],
                                                     "holding_gap": 0},))

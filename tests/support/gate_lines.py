@@ -18,7 +18,8 @@ SUMMARY_KEYS = {"gates/open", "gates/open_prior", "gates/prob_post", "gates/prob
                 "gates/steps_any_open", "gates/units_ever_open"}
 RUN_KEYS = {"gates/closed_run_mean", "gates/closed_run_p90", "gates/closed_run_max",
             "gates/null_run_mean", "gates/null_run_p90", "gates/null_run_max"}
-HOLDING_KEYS = {f"gates/holding_{gap}" for gap in HOLDING_GAPS}  # those the window fits
+HOLDING_KEYS = {f"gates/{name}_{gap}" for gap in HOLDING_GAPS  # those the window fits
+                for name in ("holding", "null_holding")}
 
 
 def gate_lines(logdir: Path) -> list[dict]:
@@ -33,7 +34,7 @@ def check_lines(lines: list[dict], final_step: int, first_step: int) -> None:
     assert steps[0] == first_step and steps[-1] == final_step and steps == sorted(set(steps))
     for line in lines:
         assert set(line) - HOLDING_KEYS == {"step", *SUMMARY_KEYS}
-        assert "gates/holding_5" in line
+        assert {"gates/holding_5", "gates/null_holding_5"} <= set(line)
         fractions = [v for k, v in line.items() if k not in {"step", "gates/kl", *RUN_KEYS}]
         assert all(0.0 <= v <= 1.0 for v in fractions), line
         assert 0 < line["gates/open"] < 1 and line["gates/kl"] > 0

@@ -20,6 +20,7 @@ from vsgjax.agents.dreamer.gate_statistics import (
     gate_statistics,
     geometric_null,
     longest_closed_runs,
+    null_holding,
 )
 from vsgjax.config import make_config
 
@@ -149,3 +150,18 @@ def test_statistics_of_a_gatel0rd_model():
                                rtol=1e-4, atol=1e-7)
     summary = stats.summary()
     assert all(np.isfinite(v) for v in summary.values()) and 0 < summary["gates/open"] < 1
+
+
+def test_the_null_holding_is_the_chance_that_independent_gates_stay_closed_for_the_gap():
+    assert null_holding(0.3, 1, 1) == pytest.approx(0.7)
+    assert null_holding(0.3, 3, 3) == pytest.approx(0.7**3)
+    # window 4, gap 3: closed 1-3 or (anything at 1, open at 1 then) closed 2-4 -> 0.7³ + 0.3·0.7³
+    assert null_holding(0.3, 3, 4) == pytest.approx(0.7**3 + 0.3 * 0.7**3)
+    assert null_holding(0.3, 5, 4) == 0.0
+    gate = jax.random.bernoulli(jax.random.PRNGKey(2), 0.3, (200, 32, 20)).astype(jnp.float32)
+    first = np.zeros((200, 32), bool)
+    measured = float(hand_made(gate, first).holding(10))
+    assert measured == pytest.approx(null_holding(0.3, 10, 32), abs=0.02)
+    summary = hand_made(gate, first).summary(gaps=[10])
+    assert summary["gates/null_holding_10"] == pytest.approx(null_holding(
+        summary["gates/open"], 10, 32))

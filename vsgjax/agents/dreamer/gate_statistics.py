@@ -152,6 +152,7 @@ class GateStatistics:
 
     def summary(self, gaps: Sequence[int] | None = None) -> dict[str, float]:
         """Scalars for logging, under ``gates/*`` keys (host floats); ``gates/holding_<gap>``
+        and the same for independent gates, ``gates/null_holding_<gap>`` (:func:`null_holding`),
         for each gap of ``gaps`` (default: those of :data:`HOLDING_GAPS` the window can
         show)."""
         lengths = jnp.arange(1, self.closed_runs.shape[0] + 1)
@@ -180,12 +181,31 @@ class GateStatistics:
                     "gates/units_ever_open": rates["units_ever_open"]})
         out.update({f"gates/{key}": value for key, value in self.closed_run_quantiles().items()
                     if key != "closed_run_mean"})
-        out.update({f"gates/holding_{gap}": self.holding(gap) for gap in gaps})
+        open_rate = float(self.gate.mean())
+        for gap in gaps:
+            out[f"gates/holding_{gap}"] = self.holding(gap)
+            out[f"gates/null_holding_{gap}"] = null_holding(open_rate, gap, window)
         return {key: float(value) for key, value in out.items()}
 
 
 # Memory gaps (steps) the summary reports gates/holding_<gap> for, where the window fits them.
 HOLDING_GAPS = (5, 10, 20, 50)
+
+
+def null_holding(open_rate: float, gap: int, window: int) -> float:
+    """Probability that a unit whose gate opens independently with probability ``open_rate``
+    at each of ``window`` steps is closed for ``gap`` consecutive steps at least once: the
+    :meth:`GateStatistics.holding` of independent gates (in windows without an episode start
+    inside; one would cut runs and lower it)."""
+    if gap < 1:
+        raise ValueError(f"a holding gap is a number of steps >= 1, got {gap}")
+    run = np.zeros(gap)  # probability of a current closed run of r < gap steps, not yet held
+    run[0], held = 1.0, 0.0
+    for _ in range(window):
+        closed = run * (1.0 - open_rate)
+        held += closed[-1]
+        run = np.concatenate([[run.sum() * open_rate], closed[:-1]])
+    return float(held)
 
 
 def geometric_null(open_rate: float, runs: int, window: int) -> dict[str, float]:
