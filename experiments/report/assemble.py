@@ -108,7 +108,7 @@ def section(context: Context, kind: str, name: str, figure: dict, out: Path) -> 
         return Section(kind, name, data, draw_open_loop(data, stem), open_loop_markdown(data))
     if kind == "panels":
         data = panels_data(context, figure.get("panels", ()), figure.get("at", ()),
-                           figure.get("memory_rule", ()))
+                           figure.get("memory_rule", ()), figure.get("holding_gap"))
         return Section(kind, name, data, draw_panels(data, stem), panels_markdown(data))
     if kind == "rollouts":
         data = rollouts_data(context)

@@ -12,7 +12,10 @@ value at a step is the evaluation nearest to it and at most one grid bin away (t
 The gate columns are the mean over seeds of each seed's last ``gates/open``,
 ``gates/closed_run_mean``, ``gates/prob_post_std`` and ``gates/kl`` in its ``metrics.jsonl``
 (VSG and SVSG log them; others read —), beside ``1 / open``, the closed run that independent
-gates would give.
+gates would give. With ``holding_gap = N`` the table adds the columns that show holding: the
+closed runs' 90th percentile and max beside the geometric null's, GateL0RD's two other rates
+and the fraction of units closed across ``N`` steps (``gates/holding_N``) beside the chance of
+that for independent gates (``gates/null_holding_N``).
 """
 
 from __future__ import annotations
@@ -45,6 +48,15 @@ from vsgjax.loop.rundir import METRICS_FILE
 GATE_KEYS = ("gates/open", "gates/closed_run_mean", "gates/prob_post_std", "gates/kl")
 GATE_DIGITS = {"gates/open": 2, "gates/closed_run_mean": 1, "gates/prob_post_std": 3,
                "gates/kl": 3}
+# The holding columns (``holding_gap``): (header, key), the gap's key added after them.
+HOLDING_COLUMNS = (("closed-run p90", "gates/closed_run_p90"),
+                   ("null p90", "gates/null_run_p90"),
+                   ("closed-run max", "gates/closed_run_max"),
+                   ("null max", "gates/null_run_max"),
+                   ("steps with a unit open", "gates/steps_any_open"),
+                   ("units ever open", "gates/units_ever_open"))
+HOLDING_DIGITS = {"gates/closed_run_p90": 1, "gates/null_run_p90": 1,
+                  "gates/closed_run_max": 1, "gates/null_run_max": 1}
 NO_RUNS = "no runs yet"
 
 
@@ -67,6 +79,8 @@ class PanelsData:
     spacing: float
     at: list[float]
     rules: list[MemoryRule]
+    holding_gap: int | None = None  # a gap (steps): add the holding columns
+
 
     @property
     def methods(self) -> list[str]:
@@ -100,32 +114,62 @@ def read_panels(entries, problems: list[str] | None = None) -> list[Panel]:
     return panels
 
 
-def last_gate_values(path: Path, problems: list[str] | None = None) -> dict[str, float]:
+def holding_keys(gap: int) -> tuple[str, str]:
+    """The logged fractions of units closed across ``gap`` steps: measured, and for
+    independent gates with the same open rate."""
+    return f"gates/holding_{gap}", f"gates/null_holding_{gap}"
+
+
+def gate_keys(holding_gap: int | None) -> tuple[str, ...]:
+    """The ``gates/*`` keys the table reads."""
+    if holding_gap is None:
+        return GATE_KEYS
+    return (*GATE_KEYS, *(key for _, key in HOLDING_COLUMNS), *holding_keys(holding_gap))
+
+
+def read_holding_gap(value, problems: list[str] | None = None) -> int | None:
+    """A figure's ``holding_gap``: a whole number of steps >= 1, or None (no holding columns;
+    a bad value is warned about)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        warn(f"panels: holding_gap must be a whole number of steps >= 1, got {value!r}; no "
+             "holding columns", problems)
+        return None
+    return value
+
+
+def last_gate_values(path: Path, problems: list[str] | None = None,
+                     keys: tuple[str, ...] = GATE_KEYS) -> dict[str, float]:
     """Each gate key's last logged number in a ``metrics.jsonl`` (keys never logged are
     absent; so is everything when the file is)."""
     if not path.exists():
         return {}
     last = {}
     for record in read_jsonl(path, problems):
-        last.update({key: float(record[key]) for key in GATE_KEYS if is_number(record.get(key))})
+        last.update({key: float(record[key]) for key in keys if is_number(record.get(key))})
     return last
 
 
-def gate_stats(context: Context, runs: list[Run]) -> dict[str, Stat]:
+def gate_stats(context: Context, runs: list[Run],
+               keys: tuple[str, ...] = GATE_KEYS) -> dict[str, Stat]:
     """Per gate key: mean ± std over the runs of each one's last logged value (a directory
     that holds another run is not counted)."""
     values = [last_gate_values(run.logdir(context.records.root) / METRICS_FILE,
-                               context.records.problems)
+                               context.records.problems, keys)
               for run in runs if not context.records.differs(run)]
-    return {key: Stat.of(value.get(key) for value in values) for key in GATE_KEYS}
+    return {key: Stat.of(value.get(key) for value in values) for key in keys}
 
 
-def panels_data(context: Context, entries=(), at=(), rule_entries=()) -> PanelsData:
+def panels_data(context: Context, entries=(), at=(), rule_entries=(),
+                holding_gap=None) -> PanelsData:
     """The seeds with scores and the gate statistics of every panel's and memory rule's task x
     method; a method the experiment (or the one it names) has no runs of on that task is
-    warned about."""
+    warned about. ``holding_gap``: the figure's (:func:`read_holding_gap`)."""
     panels = read_panels(entries, context.records.problems)
     rules = read_memory_rules(rule_entries, context.records.problems)
+    gap = read_holding_gap(holding_gap, context.records.problems)
+    keys = gate_keys(gap)
     wanted = [(panel.title, panel.task, method) for panel in panels for method in panel.methods]
     wanted += [(rule.title, rule.task, method) for rule in rules for method in rule.methods]
     seeds, gates, missing = {}, {}, []
@@ -141,10 +185,10 @@ def panels_data(context: Context, entries=(), at=(), rule_entries=()) -> PanelsD
         if not runs:
             warn(f"panels: {title!r}: {why}", context.records.problems)
         seeds[key], absent = context.scored(runs)
-        gates[key] = gate_stats(context, runs)
+        gates[key] = gate_stats(context, runs, keys)
         missing.extend(absent)
     return PanelsData(panels, seeds, gates, missing, context.spacing, [float(x) for x in at],
-                      rules)
+                      rules, gap)
 
 
 def draw_panel(ax, panel: Panel, data: PanelsData) -> None:
@@ -214,9 +258,15 @@ def gate_cells(data: PanelsData, task: str, method: str) -> list[str]:
 
     open_ = stats["gates/open"].mean
     independent = 1 / open_ if open_ else math.inf  # never open: one endless closed run
-    return [cell("gates/open"), cell("gates/closed_run_mean"),
-            fmt(independent, GATE_DIGITS["gates/closed_run_mean"]),
-            cell("gates/prob_post_std"), cell("gates/kl")]
+    cells = [cell("gates/open"), cell("gates/closed_run_mean"),
+             fmt(independent, GATE_DIGITS["gates/closed_run_mean"]),
+             cell("gates/prob_post_std"), cell("gates/kl")]
+    if data.holding_gap is None:
+        return cells
+    holding = [key for _, key in HOLDING_COLUMNS] + list(holding_keys(data.holding_gap))
+    return cells + [fmt(stats[key].mean, HOLDING_DIGITS.get(key, 2))
+                    + (f" (n={stats[key].n})" if 0 < stats[key].n < seeds else "")
+                    for key in holding]
 
 
 def verdict(data: PanelsData, panel: Panel, pair: tuple[str, str]) -> str:
@@ -247,6 +297,9 @@ def panels_markdown(data: PanelsData) -> str:
     header = ["panel", "method"] + [f"{step_label(a)} env steps" for a in data.at] + [
         "gate open fraction", "closed-run length (steps)", "if independent (1 / open)",
         "gate probability std", "gate KL (nats, Σ units)"]
+    if data.holding_gap is not None:
+        header += [name for name, _ in HOLDING_COLUMNS]
+        header += [f"units closed across {data.holding_gap} steps", "if independent"]
     rows = [header] + [[panel.title, method] + value_cells(data, panel.task, method)
                        + gate_cells(data, panel.task, method)
                        for panel in data.panels for method in panel.methods]
@@ -262,6 +315,17 @@ def panels_markdown(data: PanelsData) -> str:
              "over units, steps and sequences (near 0: the gates respond to nothing); and the "
              "last `gates/kl`, the gates' KL to Bernoulli(kappa) summed over units, which the "
              "sparsity loss holds at its free nats (`wm.gate_free`).")
+    if data.holding_gap is not None:
+        text += (" Holding columns, each the mean over seeds of its last logged value: the "
+                 "closed runs' 90th percentile and longest (`gates/closed_run_p90`, "
+                 "`gates/closed_run_max`) beside those of independent gates with the same "
+                 "open rate (the geometric null: `gates/null_run_p90`; `gates/null_run_max`, "
+                 "the median longest of as many runs; both capped at the training window); "
+                 "GateL0RD's rates of steps with any unit open and of units opened at least "
+                 "once in a sequence; and the fraction of units that stayed closed for "
+                 f"{data.holding_gap} steps or more (`{holding_keys(data.holding_gap)[0]}`), "
+                 "beside the chance that independent gates with the same open rate do so "
+                 f"within the training window (`{holding_keys(data.holding_gap)[1]}`).")
     verdicts = []
     if data.at:
         last = data.at[-1]

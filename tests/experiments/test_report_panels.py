@@ -301,3 +301,39 @@ def test_cpu_memory_defines_its_panels():
                                                                "control_full")]
     assert all((experiment, task, method) in planned for task, m in used
                for experiment, method in [(*m.split("/"),) if "/" in m else ("cpu_memory", m)])
+
+
+def test_holding_columns_follow_the_gate_columns_when_a_gap_is_given(tmp_path):
+    """``holding_gap`` adds the closed runs' p90 and max beside the geometric null's, GateL0RD's
+    two other rates and the units closed across the gap; without it the table is as before."""
+    experiment = experiment_with_panels(PANELS[:1], at=(100_000,))
+    write_runs(experiment, tmp_path)
+    holding = {"gates/closed_run_p90": 12.0, "gates/null_run_p90": 7.0,
+               "gates/closed_run_max": 40.0, "gates/null_run_max": 9.0,
+               "gates/steps_any_open": 0.5, "gates/units_ever_open": 0.75,
+               "gates/holding_20": 0.25, "gates/null_holding_20": 0.0}
+    for seed, run in enumerate(runs_of(experiment, CARTPOLE, "VSG-hidevel")):
+        path = run.logdir(tmp_path) / "metrics.jsonl"
+        line = {"step": 100_000, **{k: v + seed for k, v in holding.items()}}
+        if seed == 2:  # a seed from before the holding keys
+            line = {"step": 100_000}
+        path.write_text(path.read_text() + json.dumps(line) + "\n")
+    plain = table_rows(report.build_report(experiment, tmp_path,
+                                           tmp_path / "a").sections[0].markdown)
+    with_gap = dataclasses.replace(experiment, figures=(
+        {**experiment.figures[0], "holding_gap": 20},))
+    section = report.build_report(with_gap, tmp_path, tmp_path / "b").sections[0]
+    rows = table_rows(section.markdown)
+    assert rows[("hidden", "VSG-hidevel")] == plain[("hidden", "VSG-hidevel")] + [
+        "12.5 (n=2)", "7.5 (n=2)", "40.5 (n=2)", "9.5 (n=2)", "1.00 (n=2)", "1.25 (n=2)",
+        "0.75 (n=2)", "0.50 (n=2)"]
+    assert rows[("hidden", "DreamerV2-hidevel")][-8:] == ["—"] * 8
+    header = [line for line in section.markdown.splitlines() if line.startswith("| ")][0]
+    assert header.rstrip(" |").endswith("units closed across 20 steps | if independent")
+    assert "`gates/holding_20`" in section.markdown
+    bad = dataclasses.replace(experiment, figures=({**experiment.figures[0],
+                                                    "holding_gap": 0},))
+    with pytest.warns(ReportWarning, match="holding_gap.*0"):
+        rows = table_rows(report.build_report(bad, tmp_path, tmp_path / "c").sections[0]
+                          .markdown)
+    assert rows == plain

@@ -8,11 +8,18 @@ from pathlib import Path
 import pytest
 
 import vsgjax
+from vsgjax.agents.dreamer.gate_statistics import HOLDING_GAPS
 
 SUMMARY_KEYS = {"gates/open", "gates/open_prior", "gates/prob_post", "gates/prob_post_std",
                 "gates/prob_prior", "gates/kl", "gates/open_per_step_std",
                 "gates/open_per_unit_std", "gates/never_open", "gates/always_open",
-                "gates/closed_run_mean"}
+                "gates/closed_run_mean", "gates/closed_run_p90", "gates/closed_run_max",
+                "gates/null_run_mean", "gates/null_run_p90", "gates/null_run_max",
+                "gates/steps_any_open", "gates/units_ever_open"}
+RUN_KEYS = {"gates/closed_run_mean", "gates/closed_run_p90", "gates/closed_run_max",
+            "gates/null_run_mean", "gates/null_run_p90", "gates/null_run_max"}
+HOLDING_KEYS = {f"gates/{name}_{gap}" for gap in HOLDING_GAPS  # those the window fits
+                for name in ("holding", "null_holding")}
 
 
 def gate_lines(logdir: Path) -> list[dict]:
@@ -26,12 +33,12 @@ def check_lines(lines: list[dict], final_step: int, first_step: int) -> None:
     steps = [line["step"] for line in lines]
     assert steps[0] == first_step and steps[-1] == final_step and steps == sorted(set(steps))
     for line in lines:
-        assert set(line) == {"step", *SUMMARY_KEYS}
-        fractions = [v for k, v in line.items() if k not in ("step", "gates/kl",
-                                                             "gates/closed_run_mean")]
+        assert set(line) - HOLDING_KEYS == {"step", *SUMMARY_KEYS}
+        assert {"gates/holding_5", "gates/null_holding_5"} <= set(line)
+        fractions = [v for k, v in line.items() if k not in {"step", "gates/kl", *RUN_KEYS}]
         assert all(0.0 <= v <= 1.0 for v in fractions), line
         assert 0 < line["gates/open"] < 1 and line["gates/kl"] > 0
-        assert line["gates/closed_run_mean"] >= 1
+        assert all(line[key] >= 1 for key in RUN_KEYS)
     assert len({line["gates/kl"] for line in lines}) > 1  # the model changes between logs
 
 

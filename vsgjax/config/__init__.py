@@ -29,6 +29,7 @@ from vsgjax.config.schema import (
     CHOICES,
     ENCODERS,
     EPS_PLACEMENTS,
+    GATE_OBJECTIVES,
     LOOPS,
     PRECISIONS,
     RESUMABLE_KEYS,
@@ -54,8 +55,9 @@ from vsgjax.registry.agents import MODELS
 from vsgjax.registry.tasks import PRESET_COLUMNS as DOMAINS
 
 __all__ = [
-    "ACTOR_GRADS", "ALIGNMENTS", "CHOICES", "DOMAINS", "ENCODERS", "EPS_PLACEMENTS", "LOOPS",
-    "MODELS", "PRECISIONS", "RANGES", "RESUMABLE_KEYS", "SIZES", "VECTOR_SIZES",
+    "ACTOR_GRADS", "ALIGNMENTS", "CHOICES", "DOMAINS", "ENCODERS", "EPS_PLACEMENTS",
+    "GATE_OBJECTIVES", "LOOPS", "MODELS", "PRECISIONS", "RANGES", "RESUMABLE_KEYS", "SIZES",
+    "VECTOR_SIZES",
     "WEIGHT_DECAYS", "BehaviourConfig", "Config", "ConfigError", "DrQConfig", "EnvConfig",
     "ModelConfig", "OptimConfig", "PrototypeConfig", "TrainConfig", "WorldModelConfig",
     "apply_overrides", "apply_values",

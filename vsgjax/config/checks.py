@@ -13,8 +13,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from vsgjax.config.schema import Config, ConfigError, EnvConfig
+from vsgjax.config.schema import Config, ConfigError, EnvConfig, ModelConfig
 from vsgjax.registry import resolve
+from vsgjax.registry.agents import gated_models
 from vsgjax.registry.tasks import FAMILIES, family_of
 
 # Seeds up to 2**30 leave room below 2**31 for the evaluation envs' offset and the env index.
@@ -60,6 +61,7 @@ RANGES = {
     "wm.reward_layers": AT_LEAST_0, "wm.discount_layers": AT_LEAST_0,
     "wm.kl_scale": AT_LEAST_0, "wm.kl_balance": UNIT, "wm.kl_free": AT_LEAST_0,
     "wm.gate_alpha": AT_LEAST_0, "wm.gate_kappa": OPEN_UNIT, "wm.gate_free": AT_LEAST_0,
+    "wm.gate_lambda": AT_LEAST_0, "wm.gate_noise": AT_LEAST_0,
     "wm.reward_scale": AT_LEAST_0, "wm.discount_scale": AT_LEAST_0,
     "wm.lr": POSITIVE, "wm.eps": POSITIVE, "wm.clip": POSITIVE, "wm.weight_decay": AT_LEAST_0,
     "ac.horizon": AT_LEAST_1, "ac.starts": AT_LEAST_0, "ac.gamma": UNIT, "ac.lam": UNIT,
@@ -106,6 +108,7 @@ def check_config(config: Config) -> None:
     _check_atari_options(config)
     _check_family_options(config)
     _check_background_options(config)
+    _check_gate_objective(config)
     if config.ac.memoryless_starts and not config.ac.memoryless:
         raise ConfigError("ac.memoryless_starts=true without ac.memoryless; valid: "
                           "ac.memoryless=true with it (the control that acts and imagines from "
@@ -238,3 +241,19 @@ def _check_background_options(config: Config) -> None:
         raise ConfigError(f"env.background_dir={env.background_dir!r} with env.background="
                           f"{env.background!r}; valid: env.background_dir='' (the folder is read "
                           "only with env.background=video)")
+
+
+def _check_gate_objective(config: Config) -> None:
+    """A gate objective other than the release's needs a model with gates; GateL0RD's gate
+    has no fixed bias (vsgjax/agents/dreamer/gate_objectives.py)."""
+    objective, model = config.wm.gate_objective, config.model
+    if objective != "release" and model.name not in gated_models():
+        raise ConfigError(f"wm.gate_objective={objective} needs a model with gates; model "
+                          f"{model.name!r} has none; valid: the gated models "
+                          f"({', '.join(gated_models())}), or wm.gate_objective=release")
+    default_bias = ModelConfig().gate_bias
+    if objective == "gatel0rd" and model.gate_bias != default_bias:
+        raise ConfigError(f"model.gate_bias={model.gate_bias} with wm.gate_objective=gatel0rd, "
+                          "whose ReTanh gate has no fixed bias (GateL0RD's gate is a dense "
+                          f"layer with a learned bias); valid: model.gate_bias={default_bias} "
+                          "(not read by gatel0rd), or another wm.gate_objective")

@@ -28,11 +28,13 @@ ENCODERS = ("auto", "cnn", "mlp")
 LOOPS = ("auto", "host", "device")  # train.loop: see vsgjax/loop/device_program.py
 # env.background: see vsgjax/envs/backgrounds.py
 BACKGROUNDS = ("none", "video", "dots", "noise", "color")
+# wm.gate_objective: see vsgjax/agents/dreamer/gate_objectives.py
+GATE_OBJECTIVES = ("release", "rate", "rate_kl", "gatel0rd")
 # String keys whose values are names from a fixed list (checked when a config is built).
 CHOICES = {"ac.alignment": ALIGNMENTS, "ac.actor_grad": ACTOR_GRADS, "ac.actor_dist": ACTOR_DISTS,
            "optim.eps_placement": EPS_PLACEMENTS, "optim.weight_decay": WEIGHT_DECAYS,
            "model.precision": PRECISIONS, "train.loop": LOOPS, "wm.encoder": ENCODERS,
-           "env.background": BACKGROUNDS}
+           "env.background": BACKGROUNDS, "wm.gate_objective": GATE_OBJECTIVES}
 
 
 class ConfigError(ValueError):
@@ -77,6 +79,11 @@ class WorldModelConfig:
     gate_alpha: float = 0.1  # sparsity loss scale (0 = the NoSparsityLoss ablation)
     gate_kappa: float = 0.3  # prior gate probability
     gate_free: float = 0.1  # free nats of the sparsity loss
+    # the gated models' gate objective: "release" (the KL above), "rate" (gate_lambda·mean p),
+    # "rate_kl" (each unit's open rate to kappa), "gatel0rd" (GateL0RD's ReTanh gate and L0)
+    gate_objective: str = "release"
+    gate_lambda: float = 1.0  # scale of the rate and gatel0rd penalties (THICK's default)
+    gate_noise: float = 0.1  # gatel0rd: std of the gate's pre-activation noise (GateL0RD's)
     reward_scale: float = 1.0
     reward_tanh: bool = False  # Atari: train on tanh(reward)
     discount_head: bool = True

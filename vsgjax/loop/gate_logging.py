@@ -1,5 +1,5 @@
 """The gate statistics of a training run's logs: ``gates/*`` lines in ``metrics.jsonl`` (and
-TensorBoard), once per log, for the agents with gates (:attr:`logs_gates`: VSG, SVSG).
+TensorBoard), once per log, for the agents with gates (:attr:`logs_gates`: VSG, SVSG, VSGPro).
 
 At every log each seed's current state (the one its checkpoint of that step holds) goes
 through the agent's ``gate_summary(state, batch)`` on a batch of its training data, which for
@@ -7,6 +7,12 @@ the Dreamer family is ``vsgjax.gate_statistics(vsgjax.load(logdir).params, batch
 The host loop uses its latest training batch, the device loop a batch it samples from its
 replay (:func:`probe_key`). The cost is one posterior and one open-loop prior pass of one
 batch per log, outside the update.
+
+A line holds every key of ``GateStatistics.summary()``, those that show holding included: the
+closed runs' mean, 90th percentile and max against the geometric null of the same open rate,
+GateL0RD's three rates, and ``gates/holding_<gap>`` for each gap of ``HOLDING_GAPS`` (5, 10,
+20, 50 steps) that fits ``train.length``. The gate objective's own loss and value are the
+update's metrics (``train/wm/gate_*``), not these.
 """
 
 from __future__ import annotations

@@ -4,6 +4,8 @@
     stats = gate_statistics(state.params, batch, config=config)  # a world-model params dict
     stats.open_per_unit, stats.kl_per_unit, stats.closed_runs    # arrays, shapes below
     stats.summary()                                              # {"gates/open": ..., ...}
+    stats.holding(gap)               # fraction of units closed across gap steps
+    stats.prob_at_step(1)            # gate probability at episode step 1, at the others
 
 ``batch`` holds ``[B, T, ...]`` arrays: the observation keys the params were built for,
 ``action`` ``[B, T, A]`` and ``is_first`` ``[B, T]`` (other keys are ignored).
@@ -25,13 +27,16 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Mapping
+import math
+from collections.abc import Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from vsgjax.agents.dreamer.api import DEFAULT_SEED, TrainedParams, world_model_for
-from vsgjax.agents.dreamer.gates import bernoulli_kl
+from vsgjax.agents.dreamer.cells import BERNOULLI, open_probability
+from vsgjax.agents.dreamer.gates import bernoulli_kl, probability_kl
 from vsgjax.agents.dreamer.world_model import WorldModel, obs_spec_of
 from vsgjax.agents.interface import AgentParams
 from vsgjax.config import Config
@@ -40,7 +45,8 @@ from vsgjax.registry.agents import agent_entry, gated_models
 
 @functools.partial(jax.tree_util.register_dataclass,
                    data_fields=("gate", "post_prob", "prior_gate", "prior_prob", "kl_per_unit",
-                                "never_open", "always_open", "closed_runs"),
+                                "never_open", "always_open", "closed_runs", "longest_closed",
+                                "is_first"),
                    meta_fields=("model", "kappa"))
 @dataclasses.dataclass(frozen=True)
 class GateStatistics:
@@ -58,8 +64,12 @@ class GateStatistics:
     * ``closed_runs`` ``[T]``: ``closed_runs[k - 1]`` counts the maximal runs of exactly ``k``
       consecutive closed steps of one unit (steps over which it keeps its value), over ``B``
       and ``D``. A run ends at an open step, at an episode start (the state is reset) or at
-      the sequence's end (runs cut by the window edges count with their visible length).
+      the sequence's end (runs cut by the window edges count with their visible length);
+    * ``longest_closed`` ``[B, D]``: each unit's longest closed run in the sequence;
+    * ``is_first`` ``[B, T]``: the batch's episode starts.
 
+    "Open" is the gate that updates the unit: the Bernoulli sample, or GateL0RD's ``Θ(Λ)``
+    (``Λ > 0``; ``wm.gate_objective=gatel0rd``), whose probability is ``P(u + ε > 0)``.
     ``model`` and ``kappa`` (``wm.gate_kappa``) are static (pytree metadata).
     """
 
@@ -71,6 +81,8 @@ class GateStatistics:
     never_open: jax.Array
     always_open: jax.Array
     closed_runs: jax.Array
+    longest_closed: jax.Array
+    is_first: jax.Array
     model: str
     kappa: float
 
@@ -90,10 +102,63 @@ class GateStatistics:
         """Gate KL summed over units, averaged over ``B, T`` (the ``gate_kl`` metric)."""
         return self.kl_per_unit.sum()
 
-    def summary(self) -> dict[str, float]:
-        """Scalars for logging, under ``gates/*`` keys (host floats)."""
+    def holding(self, gap: int) -> jax.Array:
+        """Fraction of units (over ``B, D``) closed for at least ``gap`` consecutive steps of
+        one episode: units that kept a value across a memory gap of ``gap`` steps."""
+        if gap < 1:
+            raise ValueError(f"a holding gap is a number of steps >= 1, got {gap}")
+        return (self.longest_closed >= gap).mean()
+
+    def rates(self) -> dict[str, jax.Array]:
+        """GateL0RD's three rates: the fraction of open ``(b, t, unit)`` entries, of steps
+        with any unit open, and of units opened at least once in a sequence."""
+        return {"open": self.gate.mean(), "steps_any_open": (self.gate.max(-1) > 0).mean(),
+                "units_ever_open": 1.0 - self.never_open.mean()}
+
+    def episode_steps(self) -> jax.Array:
+        """``[B, T]``: each step's index in its episode (0 at ``is_first``); -1 before the
+        sequence's first episode start, whose position is unknown."""
+        index = jnp.arange(self.is_first.shape[1])
+        start = jax.lax.cummax(jnp.where(self.is_first, index, -1), axis=1)
+        return jnp.where(start >= 0, index - start, -1)
+
+    def prob_at_step(self, step: int) -> tuple[jax.Array, jax.Array]:
+        """Mean posterior gate probability at episode step ``step`` and at the other steps of
+        known position (over ``B``, those steps and ``D``; NaN where there are none).
+
+        The gate of step ``t`` is computed before observation ``t`` is seen (from the
+        posterior of ``t - 1``): the gate that can store what step 0 shows is step 1's.
+        """
+        if step < 0:
+            raise ValueError(f"an episode step is >= 0, got {step}")
+        steps = self.episode_steps()[..., None]
+        at, other = steps == step, (steps >= 0) & (steps != step)
+        mean = lambda mask: (self.post_prob * mask).sum() / (mask.sum() * self.gate.shape[-1])
+        return mean(at), mean(other)
+
+    def closed_run_quantiles(self) -> dict[str, float]:
+        """The closed runs' mean, 90th percentile and max, and the same for the geometric
+        null of independent gates with the same open rate (:func:`geometric_null`)."""
+        counts = np.asarray(jax.device_get(self.closed_runs), float)
+        runs, lengths = counts.sum(), np.arange(1, len(counts) + 1)
+        observed = {"mean": 0.0, "p90": 0.0, "max": 0.0}
+        if runs:
+            observed = {"mean": float((lengths * counts).sum() / runs),
+                        "p90": float(lengths[np.argmax(counts.cumsum() >= 0.9 * runs)]),
+                        "max": float(lengths[np.flatnonzero(counts)[-1]])}
+        null = geometric_null(float(self.gate.mean()), int(runs), len(counts))
+        return {**{f"closed_run_{k}": v for k, v in observed.items()},
+                **{f"null_run_{k}": v for k, v in null.items()}}
+
+    def summary(self, gaps: Sequence[int] | None = None) -> dict[str, float]:
+        """Scalars for logging, under ``gates/*`` keys (host floats); ``gates/holding_<gap>``
+        and the same for independent gates, ``gates/null_holding_<gap>`` (:func:`null_holding`),
+        for each gap of ``gaps`` (default: those of :data:`HOLDING_GAPS` the window can
+        show)."""
         lengths = jnp.arange(1, self.closed_runs.shape[0] + 1)
         runs = self.closed_runs.sum()
+        window = self.gate.shape[1]
+        gaps = [g for g in HOLDING_GAPS if g <= window] if gaps is None else gaps
         out = {
             "gates/open": self.gate.mean(),
             "gates/open_prior": self.prior_gate.mean(),
@@ -111,16 +176,68 @@ class GateStatistics:
         }
         if agent_entry(self.model).option("dynamics") == "SVSG":  # the gates update the state
             out["gates/stoch_updated"] = self.open_per_step.mean()
+        rates = self.rates()
+        out.update({"gates/steps_any_open": rates["steps_any_open"],
+                    "gates/units_ever_open": rates["units_ever_open"]})
+        out.update({f"gates/{key}": value for key, value in self.closed_run_quantiles().items()
+                    if key != "closed_run_mean"})
+        open_rate = float(self.gate.mean())
+        for gap in gaps:
+            out[f"gates/holding_{gap}"] = self.holding(gap)
+            out[f"gates/null_holding_{gap}"] = null_holding(open_rate, gap, window)
         return {key: float(value) for key, value in out.items()}
 
 
-def closed_run_lengths(gate: jax.Array, is_first: jax.Array) -> jax.Array:
-    """Histogram ``[T]`` of closed-run lengths of 0/1 gates ``[B, T, D]`` (see
-    :class:`GateStatistics`); ``is_first`` ``[B, T]`` cuts runs at episode starts.
+# Memory gaps (steps) the summary reports gates/holding_<gap> for, where the window fits them.
+HOLDING_GAPS = (5, 10, 20, 50)
 
-    ``count[t] = (count[t-1]·(1 - first[t]) + 1)·closed[t]`` is the length of the closed run
-    that reaches step ``t``; the run ends at ``t`` unless step ``t + 1`` continues it.
+
+def null_holding(open_rate: float, gap: int, window: int) -> float:
+    """Probability that a unit whose gate opens independently with probability ``open_rate``
+    at each of ``window`` steps is closed for ``gap`` consecutive steps at least once: the
+    :meth:`GateStatistics.holding` of independent gates (in windows without an episode start
+    inside; one would cut runs and lower it)."""
+    if gap < 1:
+        raise ValueError(f"a holding gap is a number of steps >= 1, got {gap}")
+    run = np.zeros(gap)  # probability of a current closed run of r < gap steps, not yet held
+    run[0], held = 1.0, 0.0
+    for _ in range(window):
+        closed = run * (1.0 - open_rate)
+        held += closed[-1]
+        run = np.concatenate([[run.sum() * open_rate], closed[:-1]])
+    return float(held)
+
+
+def geometric_null(open_rate: float, runs: int, window: int) -> dict[str, float]:
+    """Closed-run statistics of gates that open independently with probability ``q =
+    open_rate`` at each step, whose closed runs are geometric: ``P(k) = (1 - q)^(k - 1) q``.
+
+    ``mean`` = 1 / q; ``p90`` the smallest ``k`` with ``1 - (1 - q)^k >= 0.9``; ``max`` the
+    median of the longest of ``runs`` such runs, the smallest ``k`` with
+    ``(1 - (1 - q)^k)^runs >= 1/2``. ``p90`` and ``max`` are capped at ``window`` (no longer run
+    fits in a sequence); the mean is not (a window's edges cut runs, so independent gates show
+    a little less). No gate ever open: ``inf``, ``window``, ``window``.
     """
+    if not 0.0 <= open_rate <= 1.0:
+        raise ValueError(f"an open rate lies in [0, 1], got {open_rate}")
+    if open_rate == 0.0:
+        return {"mean": math.inf, "p90": float(window), "max": float(window)}
+    if open_rate == 1.0:
+        return {"mean": 1.0, "p90": 1.0, "max": 1.0}
+    log_closed = math.log1p(-open_rate)
+
+    def first_k(log_tail: float) -> float:
+        """The smallest ``k`` (>= 1, <= window) with ``(1 - q)^k <= exp(log_tail)``."""
+        return float(min(window, max(1, math.ceil(log_tail / log_closed - 1e-9))))
+
+    # (1 - (1 - q)^k)^runs >= 1/2  <=>  (1 - q)^k <= 1 - 2^(-1/runs)
+    longest = first_k(math.log(-math.expm1(math.log(0.5) / max(runs, 1))))
+    return {"mean": 1.0 / open_rate, "p90": first_k(math.log(0.1)), "max": longest}
+
+
+def _closed_counts(gate: jax.Array, is_first: jax.Array):
+    """``(closed, first, counts)`` ``[B, T, D]`` int32: ``counts[t]`` is the length of the
+    closed run that reaches step ``t``, ``(count[t-1]·(1 - first[t]) + 1)·closed[t]``."""
     closed = (gate < 0.5).astype(jnp.int32)
     first = is_first.astype(jnp.int32)[..., None] * jnp.ones_like(closed)
 
@@ -131,7 +248,22 @@ def closed_run_lengths(gate: jax.Array, is_first: jax.Array) -> jax.Array:
 
     _, counts = jax.lax.scan(step, jnp.zeros_like(closed[:, 0]),
                              (jnp.moveaxis(closed, 1, 0), jnp.moveaxis(first, 1, 0)))
-    counts = jnp.moveaxis(counts, 0, 1)  # [B, T, D]
+    return closed, first, jnp.moveaxis(counts, 0, 1)
+
+
+def longest_closed_runs(gate: jax.Array, is_first: jax.Array) -> jax.Array:
+    """``[B, D]``: each unit's longest closed run (cut at episode starts) in 0/1 gates
+    ``[B, T, D]``."""
+    return _closed_counts(gate, is_first)[2].max(1)
+
+
+def closed_run_lengths(gate: jax.Array, is_first: jax.Array) -> jax.Array:
+    """Histogram ``[T]`` of closed-run lengths of 0/1 gates ``[B, T, D]`` (see
+    :class:`GateStatistics`); ``is_first`` ``[B, T]`` cuts runs at episode starts.
+
+    The run ends at step ``t`` unless step ``t + 1`` continues it.
+    """
+    closed, first, counts = _closed_counts(gate, is_first)
     continues = jnp.concatenate([closed[:, 1:] * (1 - first[:, 1:]),
                                  jnp.zeros_like(closed[:, :1])], 1)
     ends = counts * (1 - continues)  # the run's length where it ends, else 0
@@ -175,15 +307,20 @@ def gate_statistics_core(config: Config, wm_params: dict, batch: Mapping,
     gate, prior_gate = jax.lax.stop_gradient((gate, prior_gate))
     opened = gate.sum(1)  # [B, D]
     kappa = config.wm.gate_kappa
+    post_prob = open_probability(dyn.gate, logit)
+    kl = (bernoulli_kl(logit, kappa) if dyn.gate.kind == BERNOULLI
+          else probability_kl(post_prob, kappa))
     return GateStatistics(
         gate=gate,
-        post_prob=jax.nn.sigmoid(logit),
+        post_prob=post_prob,
         prior_gate=prior_gate,
-        prior_prob=jax.nn.sigmoid(prior_logit),
-        kl_per_unit=bernoulli_kl(logit, kappa).mean((0, 1)),
+        prior_prob=open_probability(dyn.gate, prior_logit),
+        kl_per_unit=kl.mean((0, 1)),
         never_open=(opened == 0).mean(-1),
         always_open=(opened == gate.shape[1]).mean(-1),
         closed_runs=closed_run_lengths(gate, batch["is_first"]),
+        longest_closed=longest_closed_runs(gate, batch["is_first"]),
+        is_first=jnp.asarray(batch["is_first"], bool),
         model=dyn.cfg.name,
         kappa=kappa,
     )

@@ -1,4 +1,5 @@
-"""Gate sparsity loss and gate statistics.
+"""Gate sparsity loss (the release's; the other objectives: :mod:`.gate_objectives`) and gate
+metrics.
 
 ``L_gate = α · max(mean_{B,T} Σ_units KL(Bern(p) ‖ Bern(κ)), free)`` with ``p = σ(logit)``,
 computed from logits with ``log σ`` so saturated gates (``|logit|`` huge) stay finite.
@@ -29,6 +30,14 @@ def bernoulli_kl(logit: jax.Array, kappa: float) -> jax.Array:
     log_p = jax.nn.log_sigmoid(logit)
     log_not_p = jax.nn.log_sigmoid(-logit)
     return p * (log_p - math.log(kappa)) + (1.0 - p) * (log_not_p - math.log1p(-kappa))
+
+
+def probability_kl(p: jax.Array, kappa: float) -> jax.Array:
+    """Elementwise ``KL(Bern(p) ‖ Bern(κ))`` from probabilities ``p`` in ``[0, 1]`` (``0 log 0
+    = 0``): for gates that have no logit (the ReTanh gate) and for open rates."""
+    _check_kappa(kappa)
+    return (jax.scipy.special.xlogy(p, p) - p * math.log(kappa)
+            + jax.scipy.special.xlogy(1.0 - p, 1.0 - p) - (1.0 - p) * math.log1p(-kappa))
 
 
 def mean_gate_kl(logit: jax.Array, kappa: float) -> jax.Array:

@@ -16,8 +16,9 @@ release; 1 − is_terminal with ``next_state``)
 The KL of one step is summed over the latent dimensions (for SVSG with ``kl_masked`` each
 dimension's KL is first multiplied by the straight-through gate sample, so closed units cost
 nothing and the mask passes gradient into the gate probability); the free nats clamp the mean
-over the whole batch, not each step. ``L_gate`` is the gate sparsity loss of
-:mod:`vsgjax.agents.dreamer.gates`. Log-likelihoods are summed over pixels (vector entries) and
+over the whole batch, not each step. ``L_gate`` is the gate objective ``wm.gate_objective``
+of :mod:`vsgjax.agents.dreamer.gate_objectives` (the release's: the sparsity loss of
+:mod:`vsgjax.agents.dreamer.gates`). Log-likelihoods are summed over pixels (vector entries) and
 averaged over
 batch and time.
 
@@ -42,7 +43,8 @@ from collections.abc import Mapping, Sequence
 import jax
 import jax.numpy as jnp
 
-from vsgjax.agents.dreamer import gates, prototypes
+from vsgjax.agents.dreamer import gate_objectives, gates, prototypes
+from vsgjax.agents.dreamer.cells import open_probability
 from vsgjax.agents.dreamer.dynamics import make_dynamics
 from vsgjax.agents.dreamer.networks import (
     DECODER_KERNELS,
@@ -171,7 +173,7 @@ class WorldModel:
 
     @functools.cached_property
     def dynamics(self):
-        return make_dynamics(self.config.model)
+        return make_dynamics(self.config.model, gate_objectives.gate_cell(self.config.wm))
 
     @property
     def dtype(self) -> jnp.dtype:
@@ -501,11 +503,12 @@ class WorldModel:
             "prior_entropy": terms["prior_entropy"].mean(),
         })
         if self.dynamics.gated:
-            losses["gate_loss"] = gates.sparsity_loss(terms["gate_logit"], wm.gate_kappa,
-                                                      wm.gate_alpha, wm.gate_free)
-            metrics["gate_kl"] = gates.mean_gate_kl(terms["gate_logit"], wm.gate_kappa)
-            metrics.update(gates.gate_metrics(terms["gate_sample"],
-                                                 jax.nn.sigmoid(terms["gate_logit"])))
+            gate_losses, gate_values = gate_objectives.gate_loss(wm, terms["gate_sample"],
+                                                                 terms["gate_logit"])
+            losses.update(gate_losses)
+            metrics.update(gate_values)
+            prob = open_probability(self.dynamics.gate, terms["gate_logit"])
+            metrics.update(gates.gate_metrics(terms["gate_sample"], prob))
         loss = sum(losses.values())
         metrics.update(losses, loss=loss)
         return loss, (metrics, posts)

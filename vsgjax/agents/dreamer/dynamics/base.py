@@ -28,7 +28,14 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from vsgjax.agents.dreamer.cells import GATE_MODES, dense, dense_init
+from vsgjax.agents.dreamer.cells import (
+    BERNOULLI_GATE,
+    GATE_MODES,
+    GateCell,
+    dense,
+    dense_init,
+    open_probability,
+)
 from vsgjax.agents.dreamer.distributions import Latent, LatentSpace
 from vsgjax.agents.precision import compute_dtype
 from vsgjax.config import ModelConfig
@@ -83,9 +90,14 @@ def _append(seq, last):
 
 @dataclass(frozen=True)
 class Dynamics(abc.ABC):
-    """Base class: the scans, KL, entropy and gate accessors common to every model."""
+    """Base class: the scans, KL, entropy and gate accessors common to every model.
+
+    ``gate``: the sparse cell's gate of the gated models (the world-model objective's:
+    :func:`vsgjax.agents.dreamer.gate_objectives.gate_cell`).
+    """
 
     cfg: ModelConfig
+    gate: GateCell = BERNOULLI_GATE
 
     def __post_init__(self):
         if self.cfg.hidden <= 0:
@@ -251,13 +263,14 @@ class Dynamics(abc.ABC):
         return state.dist.entropy()
 
     def gates(self, state: State) -> tuple[jax.Array, jax.Array]:
-        """``(g, p)``: straight-through gate sample and gate probability (gated models only)."""
+        """``(g, p)``: straight-through gate sample and the probability that the gate opens
+        (gated models only; :func:`~vsgjax.agents.dreamer.cells.open_probability`)."""
         logit = self.gate_logits(state)
-        return state.gate, jax.nn.sigmoid(logit)
+        return state.gate, open_probability(self.gate, logit)
 
     def gate_logits(self, state: State) -> jax.Array:
-        """Gate logits, for the numerically stable sparsity loss
-        (:mod:`vsgjax.agents.dreamer.gates`)."""
+        """Gate logits (the ReTanh gate: its pre-activation before the noise), for the
+        numerically stable sparsity loss (:mod:`vsgjax.agents.dreamer.gates`)."""
         if not self.gated:
             raise ValueError(f"model {self.cfg.name!r} has no gates (gated: "
                              f"{', '.join(gated_models())})")

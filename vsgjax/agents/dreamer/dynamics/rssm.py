@@ -64,9 +64,8 @@ class RSSM(Dynamics):
         x = jax.nn.elu(dense(params["img_in"], inputs, self.dtype))
         if self.gated:
             cfg = self.cfg
-            out = sparse_gru_cell(
-                params["cell"], prev.deter, x, cell_key, cfg.gate_bias, cfg.gate_mode, self.dtype
-            )
+            out = sparse_gru_cell(params["cell"], prev.deter, x, cell_key, cfg.gate_bias,
+                                  cfg.gate_mode, self.dtype, self.gate)
             dist = self._prior_dist(params, out.state)
             return GatedRSSMState(
                 out.state, dist.sample(stoch_key), dist, out.gate, out.gate_logit

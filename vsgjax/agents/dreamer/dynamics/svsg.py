@@ -8,6 +8,8 @@ latent units are resampled and which are copied::
     post  ẑ ~ stats(ELU(Dense([ĉ, e])));     z_post  = g ⊙ ẑ_post  + (1 - g) ⊙ z_prev  (same g)
     feat = z
 
+(with GateL0RD's ReTanh gate the continuous ``Λ`` takes the place of ``g`` in both updates)
+
 A state's ``dist`` is the distribution of the candidate ``ẑ``; the world model's masked KL
 multiplies its per-dimension KL by ``g``.
 """
@@ -19,7 +21,7 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from vsgjax.agents.dreamer.cells import cell_init, dense, dense_init, gated_update, sparse_gru_cell
+from vsgjax.agents.dreamer.cells import apply_gate, cell_init, dense, dense_init, sparse_gru_cell
 from vsgjax.agents.dreamer.dynamics.base import Dynamics, SVSGState
 
 
@@ -54,27 +56,27 @@ class SVSG(Dynamics):
         stoch, dist = self.latent.zeros()
         return SVSGState(stoch, dist, jnp.zeros_like(stoch), jnp.zeros_like(stoch))
 
-    def _prior(self, params, prev, action, key) -> tuple[SVSGState, jax.Array]:
-        """Prior state and the cell's candidate ``ĉ`` (which the posterior also reads)."""
+    def _prior(self, params, prev, action, key) -> tuple[SVSGState, jax.Array, jax.Array]:
+        """Prior state, the cell's candidate ``ĉ`` (which the posterior also reads) and the
+        weight its update used (which the posterior's update uses too)."""
         cell_key, stoch_key = jax.random.split(key)
         inputs = jnp.concatenate([prev.stoch, action], -1)
         x = jax.nn.elu(dense(params["img_in"], inputs, self.dtype))
         cfg = self.cfg
-        out = sparse_gru_cell(
-            params["cell"], prev.stoch, x, cell_key, cfg.gate_bias, cfg.gate_mode, self.dtype
-        )
+        out = sparse_gru_cell(params["cell"], prev.stoch, x, cell_key, cfg.gate_bias,
+                              cfg.gate_mode, self.dtype, self.gate)
         dist = self._prior_dist(params, out.candidate)
-        stoch = gated_update(out.gate, dist.sample(stoch_key), prev.stoch)
-        return SVSGState(stoch, dist, out.gate, out.gate_logit), out.candidate
+        stoch = apply_gate(self.gate.kind, out.weight, dist.sample(stoch_key), prev.stoch)
+        return SVSGState(stoch, dist, out.gate, out.gate_logit), out.candidate, out.weight
 
     def img_step(self, params, prev, action, key):
         return self._prior(params, prev, action, key)[0]
 
     def _obs_step_projected(self, params, prev, action, embed_proj, key):
         prior_key, post_key = jax.random.split(key)
-        prior, candidate = self._prior(params, prev, action, prior_key)
+        prior, candidate, weight = self._prior(params, prev, action, prior_key)
         dist = self._posterior_dist(params, "cand", candidate, embed_proj)
-        stoch = gated_update(prior.gate, dist.sample(post_key), prev.stoch)
+        stoch = apply_gate(self.gate.kind, weight, dist.sample(post_key), prev.stoch)
         return prior._replace(stoch=stoch, dist=dist), prior
 
     def feat(self, state):
