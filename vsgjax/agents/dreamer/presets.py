@@ -4,6 +4,20 @@ keys. Pure data; what differs between the family's models is in their registry e
 (:mod:`vsgjax.registry.agents`); :func:`vsgjax.config.make_config` applies both.
 """
 
+# DreamerV2's Atari model, loss and actor-critic settings (its discrete-action column)
+_DISCRETE_MODEL = {
+    "model.deter": 600, "model.hidden": 600,
+    "wm.cnn_depth": 48, "wm.mlp_layers": 4, "wm.mlp_units": 400,
+    "wm.reward_layers": 4, "wm.discount_layers": 4,
+    "wm.kl_scale": 0.1, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
+    "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.4, "wm.gate_free": 0.1,
+    "wm.lr": 2e-4, "wm.discount_head": True, "wm.discount_scale": 5.0,
+    "wm.reward_scale": 1.0, "wm.reward_tanh": True, "wm.weight_decay": 1e-6,
+    "ac.actor_lr": 4e-5, "ac.critic_lr": 1e-4, "ac.gamma": 0.999, "ac.entropy": 1e-3,
+    "ac.actor_grad": "reinforce",
+    "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
+}
+
 COLUMN = {
     "bbs": {
         "env.action_repeat": 4, "env.time_limit": 3000,
@@ -38,16 +52,7 @@ COLUMN = {
     "atari": {
         "env.action_repeat": 4, "env.time_limit": 108_000, "env.grayscale": True,
         "env.sticky": 0.25,
-        "model.deter": 600, "model.hidden": 600,
-        "wm.cnn_depth": 48, "wm.mlp_layers": 4, "wm.mlp_units": 400,
-        "wm.reward_layers": 4, "wm.discount_layers": 4,
-        "wm.kl_scale": 0.1, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
-        "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.4, "wm.gate_free": 0.1,
-        "wm.lr": 2e-4, "wm.discount_head": True, "wm.discount_scale": 5.0,
-        "wm.reward_scale": 1.0, "wm.reward_tanh": True, "wm.weight_decay": 1e-6,
-        "ac.actor_lr": 4e-5, "ac.critic_lr": 1e-4, "ac.gamma": 0.999, "ac.entropy": 1e-3,
-        "ac.actor_grad": "reinforce",
-        "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
+        **_DISCRETE_MODEL,
         # DreamerV2's Atari counts agent steps (x4 frames); here every count is in env steps
         # (frames): 5e7 agent steps, prefill 5e4, eval every 2.5e5 (train_every stays in agent
         # steps, as everywhere).
@@ -60,16 +65,7 @@ COLUMN = {
     # of vector observations one decision per step (docs/mjx.md, docs/deviations.md).
     "gymnax": {
         "env.action_repeat": 1, "env.time_limit": 1000,
-        "model.deter": 600, "model.hidden": 600,
-        "wm.cnn_depth": 48, "wm.mlp_layers": 4, "wm.mlp_units": 400,
-        "wm.reward_layers": 4, "wm.discount_layers": 4,
-        "wm.kl_scale": 0.1, "wm.kl_balance": 0.8, "wm.kl_free": 0.0,
-        "wm.gate_alpha": 0.1, "wm.gate_kappa": 0.4, "wm.gate_free": 0.1,
-        "wm.lr": 2e-4, "wm.discount_head": True, "wm.discount_scale": 5.0,
-        "wm.reward_scale": 1.0, "wm.reward_tanh": True, "wm.weight_decay": 1e-6,
-        "ac.actor_lr": 4e-5, "ac.critic_lr": 1e-4, "ac.gamma": 0.999, "ac.entropy": 1e-3,
-        "ac.actor_grad": "reinforce",
-        "ac.actor_layers": 4, "ac.critic_layers": 4, "ac.weight_decay": 1e-6,
+        **_DISCRETE_MODEL,
         "train.batch": 16, "train.train_every": 5, "train.prefill": 5000,
         "train.oversample_ends": False, "train.pretrain": 100,
         "train.steps": 500_000, "train.eval_every": 10_000, "train.eval_episodes": 100,
