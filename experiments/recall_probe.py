@@ -49,7 +49,7 @@ from vsgjax.registry.agents import MODELS, dreamer_models, gated_models, prototy
 TASK = "gymnax_memory_len"
 DEFAULT_LENGTHS = (5, 10, 20, 40)
 DEFAULT_VARIANTS = ("dreamerv2", "vsg:release", "vsg:rate", "vsg:gatel0rd", "vsg:rate_kl")
-DEFAULT_UPDATES = 1000
+DEFAULT_UPDATES = 2000
 DEFAULT_EVAL_EPISODES = 1000
 DEFAULT_OUT = Path("experiments/results/recall_probe")
 # Stored steps observed before open-loop imagination: the reset observation and the first
@@ -254,7 +254,8 @@ def _cell(values: list[float | None], digits: int = 2) -> str:
 
 def table(records: Sequence[dict]) -> str:
     """Markdown table: one row per (L, variant), means (± std over seeds)."""
-    head = ("| L | variant | seeds | acc. filtered | acc. open loop | open | closed run mean "
+    head = ("| L | variant | seeds | acc. filtered | acc. open loop | mean abs r̂ before last "
+            "| open | closed run mean "
             "(null) | closed run max (null) | holding L-1 (null) | p(step 1) / p(other) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     groups: dict[tuple[int, str], list[dict]] = {}
@@ -264,7 +265,8 @@ def table(records: Sequence[dict]) -> str:
         gates = [r["gates"] for r in group if r["gates"]]
         row = [str(length), name, str(len(group)),
                _cell([r["accuracy_filtered"] for r in group]),
-               _cell([r["accuracy_open_loop"] for r in group]), *_gate_cells(gates)]
+               _cell([r["accuracy_open_loop"] for r in group]),
+               _cell([r["reward_abs_before_last"] for r in group]), *_gate_cells(gates)]
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
 
