@@ -1,0 +1,328 @@
+"""The world-model recall probe: does a world model hold bsuite's MemoryChain cue?
+
+Trains only the world model (no actor-critic) of a model and gate objective on random-policy
+``gymnax_memory_len`` episodes and measures, on fresh held-out episodes, how often the sign of
+the reward head's mean at the last step matches the true final reward (±1; chance 0.5):
+
+* ``filtered``: from the posterior after observing the whole episode;
+* ``open_loop``: after observing the first :data:`OBSERVED_STEPS` stored steps only, imagining
+  the rest under the episode's recorded actions and reading the last imagined step.
+
+An episode is stored as the device loop stores it: the reset observation and the L + 1 agent
+steps (L + 2 steps, ``is_first`` at step 0, the final reward at step L + 1). ``action[t]`` is the
+action that led to observation ``t`` and ``reward[t]`` the reward it earned, so the release's
+convention (reward ``r_t`` predicted from state ``s_t``) reads the final reward from the state
+that has seen the deciding action. For gated models the record adds gate statistics of the
+held-out episodes (:mod:`vsgjax.agents.dreamer.gate_statistics`)::
+
+    python -m experiments.recall_probe                                  # the default sweep
+    python -m experiments.recall_probe --lengths 5,20 --variants dreamerv2,vsg:rate --seeds 0,1
+
+One JSON record per (L, variant, seed) under ``--out``; existing records are kept (the sweep
+resumes), and ``report.md`` there holds the table printed at the end. docs/experiments.md,
+"The recall probe", has what it measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import vsgjax
+from vsgjax.agents.dreamer.api import world_model_for
+from vsgjax.agents.dreamer.gate_statistics import null_holding
+from vsgjax.config import Config, ConfigError
+from vsgjax.envs.gymnax_tasks import OBS_KEY, MemoryChainTask
+from vsgjax.registry.agents import MODELS, dreamer_models, gated_models, prototype_models
+
+TASK = "gymnax_memory_len"
+DEFAULT_LENGTHS = (5, 10, 20, 40)
+DEFAULT_VARIANTS = ("dreamerv2", "vsg:release", "vsg:rate", "vsg:gatel0rd", "vsg:rate_kl")
+DEFAULT_UPDATES = 2000
+DEFAULT_EVAL_EPISODES = 1000
+DEFAULT_OUT = Path("experiments/results/recall_probe")
+# Stored steps observed before open-loop imagination: the reset observation and the first
+# step's, which both show the cue (bsuite's step t returns the observation of time t - 1).
+OBSERVED_STEPS = 2
+ACTIONS = 2
+
+
+def probe_models() -> tuple[str, ...]:
+    """The models the probe trains: Dreamer world models with a reward head read from a
+    decoder-trained state (not the prototype models)."""
+    return tuple(m for m in dreamer_models() if m not in prototype_models())
+
+
+@dataclasses.dataclass(frozen=True)
+class Variant:
+    """A model and, for a gated model, its gate objective (``None``: the model's preset)."""
+
+    model: str
+    objective: str | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> Variant:
+        """``model`` or ``model:objective``; the names are checked by :func:`probe_config`."""
+        model, _, objective = text.strip().partition(":")
+        if not model or ":" in objective or (_ and not objective):
+            raise ConfigError(f"variant {text!r}; valid: 'model' or 'model:objective', e.g. "
+                              f"{', '.join(DEFAULT_VARIANTS)}")
+        return cls(model, objective or None)
+
+    @property
+    def name(self) -> str:
+        return self.model if self.objective is None else f"{self.model}:{self.objective}"
+
+
+def probe_config(length: int, variant: Variant, seed: int, size: str = "cpu") -> Config:
+    """The config of one probe: ``gymnax_memory_len`` at ``size``, one whole stored episode
+    (L + 2 steps) per training sequence. Raises ConfigError naming a bad value and the valid
+    ones (make_config's checks, and models the probe cannot train)."""
+    if variant.model in MODELS and variant.model not in probe_models():
+        raise ConfigError(f"model {variant.model!r} has no decoder-trained world model to probe; "
+                          f"valid: {', '.join(probe_models())}")
+    overrides = [f"env.memory_length={length}", f"train.length={length + 2}",
+                 f"train.seed={seed}"]
+    if variant.objective is not None:
+        overrides.append(f"wm.gate_objective={variant.objective}")
+    return vsgjax.make_config(TASK, variant.model, size, overrides)
+
+
+@functools.partial(jax.jit, static_argnames=("task", "count"))
+def collect(task: MemoryChainTask, key: jax.Array, count: int) -> dict:
+    """``count`` random-policy episodes ``[count, L + 2, ...]`` as the device loop stores them
+    (step 0 the reset observation with a zero action; uniform one-hot actions after)."""
+
+    def episode(key):
+        reset_key, action_key = jax.random.split(key)
+        start = task.reset(reset_key)
+        actions = jax.nn.one_hot(
+            jax.random.randint(action_key, (task.episode_steps,), 0, ACTIONS), ACTIONS)
+
+        def step(state, action):
+            state = task.step(state, action)
+            return state, (state.obs[OBS_KEY], state.reward, state.is_terminal)
+
+        _, (obs, reward, terminal) = jax.lax.scan(step, start, actions)
+        first = jnp.arange(task.episode_steps + 1) == 0
+        return {
+            OBS_KEY: jnp.concatenate([start.obs[OBS_KEY][None], obs]),
+            "action": jnp.concatenate([jnp.zeros((1, ACTIONS)), actions]),
+            "reward": jnp.concatenate([jnp.zeros(1), reward]),
+            "is_first": first,
+            "is_terminal": jnp.concatenate([jnp.zeros(1, bool), terminal]),
+        }
+
+    return jax.vmap(episode)(jax.random.split(key, count))
+
+
+@functools.partial(jax.jit, static_argnames="config")
+def recall(config: Config, params: dict, batch: dict, key: jax.Array) -> dict:
+    """Accuracy of the final reward's sign, filtered and open loop, and the mean |predicted
+    reward| at the steps whose reward is 0 (the reward head's time alignment)."""
+    observe_key, imagine_key = jax.random.split(key)
+    posts, _ = vsgjax.observe(config, params, batch, observe_key)
+    model = world_model_for(config, params, ACTIONS)
+    predicted = model.reward_mean(params, jax.vmap(jax.vmap(model.dynamics.feat))(posts))
+    start = jax.tree.map(lambda x: x[:, OBSERVED_STEPS - 1], posts)
+    horizon = batch["action"].shape[1] - OBSERVED_STEPS
+    dreamed = vsgjax.imagine(params, start, horizon, config=config, key=imagine_key,
+                             actions=batch["action"][:, OBSERVED_STEPS:])
+    truth = jnp.sign(batch["reward"][:, -1])
+    return {
+        "accuracy_filtered": (jnp.sign(predicted[:, -1]) == truth).mean(),
+        "accuracy_open_loop": (jnp.sign(dreamed["rewards"][:, -1]) == truth).mean(),
+        "reward_abs_before_last": jnp.abs(predicted[:, :-1]).mean(),
+    }
+
+
+def gate_record(config: Config, params: dict, batch: dict, key: jax.Array) -> dict[str, float]:
+    """Gate statistics of held-out episodes: open fraction, closed runs against the geometric
+    null, units closed across the gap, and the gate probability at step 1 (the gate that can
+    store the cue shown at step 0) against the other steps."""
+    stats = vsgjax.gate_statistics(params, batch, key, config=config)
+    length = config.env.memory_length
+    # The cue is shown at stored steps 0 and 1 and needed at step L + 1: a unit written at
+    # step 2 (from step 1's posterior) holds it if it stays closed for the L - 1 steps after.
+    gap = max(1, length - 1)
+    open_rate = float(stats.gate.mean())
+    at_cue, elsewhere = stats.prob_at_step(1)
+    out = {"open": open_rate, **{k: float(v) for k, v in stats.rates().items() if k != "open"},
+           **stats.closed_run_quantiles(), "gap": gap, "holding": float(stats.holding(gap)),
+           "null_holding": null_holding(open_rate, gap, stats.gate.shape[1]),
+           "prob_step1": float(at_cue), "prob_other": float(elsewhere)}
+    return {k: (v if math.isfinite(v) else None) for k, v in out.items()}
+
+
+def run_probe(length: int, variant: Variant, seed: int, updates: int,
+              eval_episodes: int, size: str = "cpu") -> dict:
+    """Train one world model and measure it: the JSON record (deterministic but ``wall_s``)."""
+    config = probe_config(length, variant, seed, size)
+    began = time.perf_counter()
+    task = MemoryChainTask(length)
+    init_key, data_key, train_key, eval_key = jax.random.split(jax.random.PRNGKey(seed), 4)
+    state = vsgjax.init(config, init_key, obs_shape={OBS_KEY: (3,)}, action_dim=ACTIONS)
+    metrics = {}
+    for update in range(updates):
+        batch = collect(task, jax.random.fold_in(data_key, update), config.train.batch)
+        state, metrics, _ = vsgjax.world_model_step(config, state, batch,
+                                                    jax.random.fold_in(train_key, update))
+    held_out = collect(task, jax.random.fold_in(eval_key, 0), eval_episodes)
+    probe_key, gate_key = jax.random.split(jax.random.fold_in(eval_key, 1))
+    record = {
+        "task": TASK, "memory_length": length, "variant": variant.name, "model": variant.model,
+        "gate_objective": config.wm.gate_objective if variant.model in gated_models() else None,
+        "seed": seed, "size": size, "updates": updates, "batch": config.train.batch,
+        "sequence_length": config.train.length, "eval_episodes": eval_episodes,
+        "observed_steps": OBSERVED_STEPS,
+        **{k: float(v) for k, v in recall(config, state.params, held_out, probe_key).items()},
+        "final_metrics": {k: float(v) for k, v in metrics.items()},
+        "gates": (gate_record(config, state.params, held_out, gate_key)
+                  if variant.model in gated_models() else None),
+    }
+    record["wall_s"] = round(time.perf_counter() - began, 1)
+    return record
+
+
+def record_path(out: Path, length: int, variant: Variant, seed: int) -> Path:
+    return out / f"L{length}-{variant.name.replace(':', '-')}-s{seed}.json"
+
+
+SETTINGS = ("updates", "eval_episodes", "size")  # a kept record must match these
+
+
+def sweep(lengths: Sequence[int], variants: Sequence[Variant], seeds: Sequence[int],
+          updates: int, eval_episodes: int, out: Path, size: str = "cpu",
+          log=print) -> list[dict]:
+    """Run every missing (L, variant, seed) record, keep the existing ones; return all of them.
+
+    Every config is checked before anything is written; a kept record trained with other
+    settings is refused (naming them) rather than mixed into the table."""
+    for name, value in (("updates", updates), ("eval episodes", eval_episodes)):
+        if value < 1:
+            raise ConfigError(f"{name}={value}; valid: >= 1")
+    cells = [(length, variant, seed) for length in lengths for variant in variants
+             for seed in seeds]
+    for cell in cells:
+        probe_config(*cell, size)
+    settings = {"updates": updates, "eval_episodes": eval_episodes, "size": size}
+    kept = {}
+    for cell in cells:
+        path = record_path(out, *cell)
+        if path.exists():
+            kept[cell] = json.loads(path.read_text())
+            differ = {k: kept[cell][k] for k in SETTINGS if kept[cell][k] != settings[k]}
+            if differ:
+                raise ConfigError(f"{path} was measured with {differ}, not {settings}; valid: "
+                                  "the same settings, or another --out")
+    out.mkdir(parents=True, exist_ok=True)
+    records = []
+    for cell in cells:
+        path = record_path(out, *cell)
+        if cell in kept:
+            log(f"kept {path}")
+            records.append(kept[cell])
+            continue
+        record = run_probe(*cell, updates, eval_episodes, size)
+        tmp = path.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(record, indent=1) + "\n")
+        tmp.replace(path)
+        log(f"wrote {path} ({record['wall_s']} s): filtered {record['accuracy_filtered']:.3f}, "
+            f"open loop {record['accuracy_open_loop']:.3f}")
+        records.append(record)
+    return records
+
+
+def _cell(values: list[float | None], digits: int = 2) -> str:
+    values = [v for v in values if v is not None]
+    if not values:
+        return "-"
+    text = f"{np.mean(values):.{digits}f}"
+    return text + (f" ± {np.std(values):.{digits}f}" if len(values) > 1 else "")
+
+
+def table(records: Sequence[dict]) -> str:
+    """Markdown table: one row per (L, variant), means (± std over seeds)."""
+    head = ("| L | variant | seeds | acc. filtered | acc. open loop | mean abs r̂ before last "
+            "| open | closed run mean "
+            "(null) | closed run max (null) | holding L-1 (null) | p(step 1) / p(other) |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    groups: dict[tuple[int, str], list[dict]] = {}
+    for r in records:
+        groups.setdefault((r["memory_length"], r["variant"]), []).append(r)
+    for (length, name), group in groups.items():
+        gates = [r["gates"] for r in group if r["gates"]]
+        row = [str(length), name, str(len(group)),
+               _cell([r["accuracy_filtered"] for r in group]),
+               _cell([r["accuracy_open_loop"] for r in group]),
+               _cell([r["reward_abs_before_last"] for r in group]), *_gate_cells(gates)]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def _gate_cells(gates: Sequence[dict]) -> list[str]:
+    """The gate columns of one table row ("-" for a gateless model)."""
+    if not gates:
+        return ["-"] * 5
+
+    def pick(key: str, digits: int = 2) -> str:
+        return _cell([g[key] for g in gates], digits)
+
+    return [pick("open"),
+            f"{pick('closed_run_mean', 1)} ({pick('null_run_mean', 1)})",
+            f"{pick('closed_run_max', 0)} ({pick('null_run_max', 0)})",
+            f"{pick('holding')} ({pick('null_holding')})",
+            f"{pick('prob_step1')} / {pick('prob_other')}"]
+
+
+def _ints(text: str) -> list[int]:
+    try:
+        return [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}; valid: comma-separated integers") from None
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m experiments.recall_probe",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--lengths", type=_ints, default=list(DEFAULT_LENGTHS),
+                        help="memory lengths L (default %(default)s)")
+    parser.add_argument("--variants", default=",".join(DEFAULT_VARIANTS),
+                        help="model[:gate objective], comma-separated (default %(default)s)")
+    parser.add_argument("--seeds", type=_ints, default=[0], help="default %(default)s")
+    parser.add_argument("--updates", type=int, default=DEFAULT_UPDATES,
+                        help="world-model updates per probe (default %(default)s)")
+    parser.add_argument("--eval-episodes", type=int, default=DEFAULT_EVAL_EPISODES,
+                        help="held-out episodes (default %(default)s)")
+    parser.add_argument("--size", default="cpu", help="config size (default %(default)s)")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="default %(default)s")
+    args = parser.parse_args(argv)
+    try:
+        variants = [Variant.parse(v) for v in args.variants.split(",")]
+        records = sweep(args.lengths, variants, args.seeds, args.updates, args.eval_episodes,
+                        args.out, args.size)
+    except ConfigError as error:
+        parser.error(str(error))
+    report = table(records)
+    (args.out / "report.md").write_text(
+        "# Recall probe\n\nAccuracy of the final reward's sign on held-out random-policy "
+        f"episodes (chance 0.5); {args.updates} updates, {args.eval_episodes} episodes, size "
+        f"{args.size}, open loop after {OBSERVED_STEPS} observed steps. "
+        "docs/experiments.md, \"The recall probe\", explains the columns.\n\n" + report + "\n")
+    print(report)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""Tests of ``python -m experiments.recall_probe`` at the debug size: L = 3, two updates, a
+few held-out episodes (one compilation, shared by the module's tests)."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+from experiments import recall_probe
+from experiments.recall_probe import Variant
+from vsgjax.config import ConfigError
+from vsgjax.envs.gymnax_tasks import OBS_KEY, MemoryChainTask
+
+LENGTH, UPDATES, EPISODES, SIZE = 3, 2, 8, "debug"
+GATED = Variant("vsg", "rate")
+
+
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    out = tmp_path_factory.mktemp("probe")
+    records = recall_probe.sweep([LENGTH], [GATED], [0], UPDATES, EPISODES, out, SIZE)
+    return out, records
+
+
+def test_collected_episodes_align_the_final_reward_with_its_action():
+    """Step L + 1's reward is +1 exactly when the action stored with it is the cue's bit
+    (context = 2·bit - 1 at step 0), and 0 at every other step."""
+    batch = recall_probe.collect(MemoryChainTask(LENGTH), jax.random.PRNGKey(3), 64)
+    assert batch[OBS_KEY].shape == (64, LENGTH + 2, 3)
+    assert batch["action"].shape == (64, LENGTH + 2, 2)
+    bit = batch[OBS_KEY][:, 0, 2] > 0
+    assert bool(jnp.all(batch[OBS_KEY][:, 1, 2] == batch[OBS_KEY][:, 0, 2]))  # shown twice
+    assert bool(jnp.all(batch[OBS_KEY][:, 2:, 2] == 0))
+    expected = jnp.where(jnp.argmax(batch["action"][:, -1], -1) == bit, 1.0, -1.0)
+    assert bool(jnp.all(batch["reward"][:, -1] == expected))
+    assert 0 < float((expected > 0).mean()) < 1  # both signs occur
+    assert bool(jnp.all(batch["reward"][:, :-1] == 0))
+    assert batch["is_first"][:, 0].all() and not batch["is_first"][:, 1:].any()
+    assert batch["is_terminal"][:, -1].all() and not batch["is_terminal"][:, :-1].any()
+
+
+def test_record_fields_and_ranges(swept):
+    out, (record,) = swept
+    assert record_on_disk(out) == record
+    assert record["memory_length"] == LENGTH and record["variant"] == "vsg:rate"
+    assert record["gate_objective"] == "rate" and record["sequence_length"] == LENGTH + 2
+    for key in ("accuracy_filtered", "accuracy_open_loop"):
+        assert 0.0 <= record[key] <= 1.0
+        assert record[key] * EPISODES == round(record[key] * EPISODES)  # a count of episodes
+    gates = record["gates"]
+    assert 0.0 < gates["open"] < 1.0 and gates["gap"] == LENGTH - 1
+    assert 0.0 <= gates["holding"] <= 1.0 and 0.0 <= gates["null_holding"] <= 1.0
+    assert 1 <= gates["closed_run_mean"] <= gates["closed_run_max"] <= LENGTH + 2
+    assert 0.0 < gates["prob_step1"] < 1.0 and 0.0 < gates["prob_other"] < 1.0
+    assert "reward_loss" in record["final_metrics"]
+
+
+def record_on_disk(out):
+    return json.loads(recall_probe.record_path(out, LENGTH, GATED, 0).read_text())
+
+
+def test_same_seed_same_numbers(swept):
+    _, (record,) = swept
+    again = recall_probe.run_probe(LENGTH, GATED, 0, UPDATES, EPISODES, SIZE)
+    assert {k: v for k, v in again.items() if k != "wall_s"} == \
+        {k: v for k, v in record.items() if k != "wall_s"}
+
+
+def test_a_second_sweep_keeps_the_records(swept, monkeypatch):
+    out, (record,) = swept
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a kept record was measured again")
+
+    monkeypatch.setattr(recall_probe, "run_probe", refuse)
+    assert recall_probe.sweep([LENGTH], [GATED], [0], UPDATES, EPISODES, out, SIZE) == [record]
+    with pytest.raises(ConfigError, match="updates"):  # other settings: refused, not mixed
+        recall_probe.sweep([LENGTH], [GATED], [0], UPDATES + 1, EPISODES, out, SIZE)
+    assert record_on_disk(out) == record
+    table = recall_probe.table([record])
+    assert "| 3 | vsg:rate | 1 |" in table
+
+
+@pytest.mark.parametrize("lengths, variant, message", [
+    ([0], "vsg", "env.memory_length"),
+    ([3], "vsgg", "did you mean 'vsg'"),
+    ([3], "vsg:sparse", "release, rate, rate_kl, gatel0rd"),
+    ([3], "dreamerv2:rate", "has none"),
+    ([3], "dreamerpro", "valid: .*dreamerv2"),
+    ([3], "vsg:", "'model' or 'model:objective'"),
+])
+def test_bad_input_is_refused_before_anything_is_written(tmp_path, lengths, variant, message):
+    out = tmp_path / "probe"
+    with pytest.raises(ConfigError, match=message):
+        variants = [Variant.parse(variant)]
+        recall_probe.sweep(lengths, variants, [0], UPDATES, EPISODES, out, SIZE)
+    assert not out.exists()
+
+
+def test_cli_names_the_bad_value(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        recall_probe.main(["--variants", "dreamerv2:gatel0rd", "--out", str(tmp_path / "p")])
+    assert "dreamerv2" in capsys.readouterr().err
+    assert not (tmp_path / "p").exists()
