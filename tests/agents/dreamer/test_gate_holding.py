@@ -78,16 +78,28 @@ def test_gatel0rds_three_rates():
 
 
 @pytest.mark.parametrize("q, p90", [(0.5, 4), (0.4, 5), (0.1, 22)])
-def test_the_geometric_nulls_mean_is_one_over_the_open_rate(q, p90):
-    null = geometric_null(q, runs=1, window=1000)
-    assert null["mean"] == pytest.approx(1 / q)
+def test_the_geometric_nulls_mean_is_one_over_the_open_rate_in_long_windows(q, p90):
+    null = geometric_null(q, runs=1, window=10**6)
+    assert null["mean"] == pytest.approx(1 / q, rel=1e-4)
     assert null["p90"] == p90 == math.ceil(math.log(0.1) / math.log(1 - q))
     assert (1 - q) ** p90 <= 0.1 < (1 - q) ** (p90 - 1)
     assert null["max"] == math.ceil(math.log(0.5) / math.log(1 - q))  # the median of one run
     more = geometric_null(q, runs=1000, window=1000)["max"]
     assert (1 - (1 - q) ** more) ** 1000 >= 0.5 > (1 - (1 - q) ** (more - 1)) ** 1000
     assert geometric_null(q, runs=10**6, window=10)["max"] == 10  # capped at the window
-    assert geometric_null(0.0, 5, 30) == {"mean": math.inf, "p90": 30.0, "max": 30.0}
+    assert geometric_null(0.0, 5, 30) == {"mean": 30.0, "p90": 30.0, "max": 30.0}
+
+
+@pytest.mark.parametrize("q, window", [(0.02, 7), (0.05, 12), (0.4, 32), (0.9, 5)])
+def test_the_nulls_mean_is_what_short_windows_of_independent_gates_show(q, window):
+    """A rarely open gate in a short window: its runs are cut by the window's edges, so the
+    null's mean stays within the window (1 / 0.02 = 50 would not fit 7 steps)."""
+    gate = jax.random.bernoulli(jax.random.PRNGKey(1), q, (2000, window, 16))
+    first = np.zeros((2000, window), bool)
+    first[:, 0] = True
+    seen = hand_made(gate.astype(jnp.float32), first).closed_run_quantiles()
+    assert seen["null_run_mean"] <= window
+    assert seen["closed_run_mean"] == pytest.approx(seen["null_run_mean"], rel=0.03)
 
 
 def test_independent_gates_match_the_null_and_a_holding_unit_does_not():
@@ -129,7 +141,7 @@ def test_the_summary_keeps_its_keys_and_adds_the_holding_ones():
     assert {f"gates/holding_{g}" for g in HOLDING_GAPS if g <= 40} <= set(summary)
     assert "gates/holding_50" not in summary  # a 40-step window cannot show it
     assert summary["gates/open"] == pytest.approx(50 / 80)
-    assert summary["gates/null_run_mean"] == pytest.approx(80 / 50)
+    assert summary["gates/null_run_mean"] == pytest.approx(40 / (1 + 39 * 50 / 80))
     assert summary["gates/steps_any_open"] == 1.0 and summary["gates/units_ever_open"] == 1.0
 
 

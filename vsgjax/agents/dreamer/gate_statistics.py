@@ -212,16 +212,19 @@ def geometric_null(open_rate: float, runs: int, window: int) -> dict[str, float]
     """Closed-run statistics of gates that open independently with probability ``q =
     open_rate`` at each step, whose closed runs are geometric: ``P(k) = (1 - q)^(k - 1) q``.
 
-    ``mean`` = 1 / q; ``p90`` the smallest ``k`` with ``1 - (1 - q)^k >= 0.9``; ``max`` the
-    median of the longest of ``runs`` such runs, the smallest ``k`` with
-    ``(1 - (1 - q)^k)^runs >= 1/2``. ``p90`` and ``max`` are capped at ``window`` (no longer run
-    fits in a sequence); the mean is not (a window's edges cut runs, so independent gates show
-    a little less). No gate ever open: ``inf``, ``window``, ``window``.
+    ``mean``: the mean of the closed runs seen in windows of ``T = window`` steps, pooled as
+    :meth:`GateStatistics.closed_run_quantiles` pools them: the expected closed steps over the
+    expected runs, ``T (1 - q) / ((1 - q)(1 + (T - 1) q)) = T / (1 + (T - 1) q)``, which is
+    ``1 / q`` for long windows and ``T`` when the gates never open (a window's edges cut runs:
+    the uncut mean ``1 / q`` would exceed what any window can show once ``1 / q > T``).
+    ``p90`` the smallest ``k`` with ``1 - (1 - q)^k >= 0.9``; ``max`` the median of the longest
+    of ``runs`` such runs, the smallest ``k`` with ``(1 - (1 - q)^k)^runs >= 1/2``; both capped
+    at ``T``. An episode start inside a window cuts runs too; this null assumes none.
     """
     if not 0.0 <= open_rate <= 1.0:
         raise ValueError(f"an open rate lies in [0, 1], got {open_rate}")
     if open_rate == 0.0:
-        return {"mean": math.inf, "p90": float(window), "max": float(window)}
+        return {"mean": float(window), "p90": float(window), "max": float(window)}
     if open_rate == 1.0:
         return {"mean": 1.0, "p90": 1.0, "max": 1.0}
     log_closed = math.log1p(-open_rate)
@@ -232,7 +235,8 @@ def geometric_null(open_rate: float, runs: int, window: int) -> dict[str, float]
 
     # (1 - (1 - q)^k)^runs >= 1/2  <=>  (1 - q)^k <= 1 - 2^(-1/runs)
     longest = first_k(math.log(-math.expm1(math.log(0.5) / max(runs, 1))))
-    return {"mean": 1.0 / open_rate, "p90": first_k(math.log(0.1)), "max": longest}
+    mean = window / (1.0 + (window - 1) * open_rate)
+    return {"mean": mean, "p90": first_k(math.log(0.1)), "max": longest}
 
 
 def _closed_counts(gate: jax.Array, is_first: jax.Array):
