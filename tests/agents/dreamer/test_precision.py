@@ -26,7 +26,7 @@ from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.agents.precision import compute_dtype, matmul
 from vsgjax.config import ConfigError, make_config
 
-# the Dreamer family's models with a decoder (the prototype models' update is DreamerPro's tests')
+# the Dreamer family's models with a decoder: the ones whose float32 updates are recorded below
 MODELS = models(dreamer=True, prototypes=False)
 GATED = models(gated=True, prototypes=False)
 FAST = ("vsg", "dreamerv2")  # the paper's model and its baseline; the others' updates are slow
