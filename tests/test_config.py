@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.doc_tables import cell_value, config_value, table_rows
+from tests.support.registry_names import example_tasks
 from vsgjax.config import (
     MODELS,
     SIZES,
@@ -19,7 +20,7 @@ from vsgjax.config import (
     to_dict,
 )
 from vsgjax.registry.agents import agent_entry, dreamer_models, prototype_models
-from vsgjax.registry.tasks import VECTOR
+from vsgjax.registry.tasks import FAMILIES, IMAGE, VECTOR
 
 
 @pytest.mark.parametrize(
@@ -40,7 +41,7 @@ from vsgjax.registry.tasks import VECTOR
         (lambda: make_config(overrides=["model.deter=1.5"]), "'1.5'", ("int",)),
         (lambda: make_config(overrides=["wm.kl_masked=maybe"]), "'maybe'", ("bool",)),
         (lambda: make_config(task="mujoco_cheetah"), "'mujoco_cheetah'",
-         ("bbs_", "dmc_", "atari_")),
+         tuple(f"{prefix}_" for prefix in FAMILIES)),
     ],
 )
 def test_errors_name_the_bad_value_and_list_valid_ones(call, named, listed):
@@ -152,7 +153,7 @@ def test_sizes_shrink_the_networks():
     assert paper.wm.cnn_depth > small.wm.cnn_depth > debug.wm.cnn_depth
 
 
-@pytest.mark.parametrize("task", ["bbs_basic", "dmc_walker_walk", "atari_pong"])
+@pytest.mark.parametrize("task", example_tasks(IMAGE))
 def test_the_cpu_size_refuses_image_tasks_naming_size_task_and_what_is_valid(task):
     with pytest.raises(ConfigError) as error:
         make_config(task, "vsg", "cpu")

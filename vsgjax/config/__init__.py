@@ -6,8 +6,8 @@ A config is built from three names and a list of overrides::
 
 * the *domain* (``bbs``, ``dmc``, ``atari``) comes from the task name's prefix and selects the
   column of the paper's hyperparameter table (docs/models.md);
-* the *model* (``dreamerv1``, ``dreamerv2``, ``vsg``, ``svsg``, ``ssm``) selects the latent
-  dynamics and its model-specific defaults;
+* the *model* (a name of :data:`vsgjax.registry.agents.MODELS`) selects the agent, its
+  latent dynamics and its model-specific defaults;
 * the *size* (``paper``, ``small``, ``cpu``, ``debug``) scales the networks: ``paper`` is the
   table, ``small`` is CPU-friendly (smaller networks, and batch 8 x 32 every 2 agent steps so
   that a small CPU updates about once a second), ``cpu`` learns the ``mjx_`` tasks (vector

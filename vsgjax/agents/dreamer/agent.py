@@ -1,5 +1,6 @@
-"""The Dreamer-family agent (DreamerV1, DreamerV2, VSG, SVSG, SSM): one jitted update of world
-model, actor and critic, and jitted acting; it implements :mod:`vsgjax.agents.interface`.
+"""The Dreamer-family agent (every model of :func:`vsgjax.registry.agents.dreamer_models`): one
+jitted update of world model, actor and critic, and jitted acting; it implements
+:mod:`vsgjax.agents.interface`.
 
     agent = DreamerAgent(config, obs_shape=(64, 64, 3), action_dim=2, discrete=False)
     # or obs_shape={"vector": (24,)} (an ObsSpec or {key: shape}; see vsgjax.observations)
