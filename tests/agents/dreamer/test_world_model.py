@@ -277,7 +277,7 @@ def test_heads_without_discount_and_with_tanh_reward():
     assert "discount" not in params and config.wm.reward_tanh
     feat = jnp.zeros((5, model.dynamics.feat_dim))
     np.testing.assert_allclose(model.discount(params, feat), np.full(5, config.ac.gamma))
-    assert jax.eval_shape(model.decode, params, feat).shape == (5, 64, 64, 1)
+    assert jax.eval_shape(model.representation.decode, params, feat).shape == (5, 64, 64, 1)
     batch = random_batch(3, 1, 3, obs_shape=(64, 64, 1), action_dim=4)
     _, (metrics, _) = jax.eval_shape(model.loss, params, batch, jax.random.PRNGKey(0))
     assert "discount_loss" not in metrics and "reward_loss" in metrics
