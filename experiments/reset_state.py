@@ -43,7 +43,7 @@ def squared_errors(model: WorldModel, wm_params: dict, episode: dict,
     errors = {}
     for name, states in zip(STATES, (carried, alone), strict=True):
         predicted = model.vector_input(
-            model.decode_vectors(wm_params, jax.vmap(model.dynamics.feat)(states)))
+            model.representation.decode_vectors(wm_params, jax.vmap(model.dynamics.feat)(states)))
         errors[name] = np.asarray((predicted - target) ** 2)
     return errors
 
@@ -52,7 +52,7 @@ def unexplained_fractions(run, episodes: int, seed: int = 0) -> dict[str, np.nda
     """``{"carried" | "alone": [D]}`` over the run's newest ``episodes`` (first steps left
     out), and ``"variance"``: the observation's variance [D] over the same steps."""
     model, params = run.world_model, run.params.wm
-    if model.has_image or not model.vector_keys or not model.decodes:
+    if model.has_image or not model.vector_keys or not model.representation.decodes:
         raise ValueError(f"run {run.logdir} observes {model.obs_shape.shapes} with model "
                          f"{run.config.model.name!r}: reset_state needs vector observations "
                          "only and a model with a decoder")

@@ -22,7 +22,7 @@ import numpy as np
 
 from experiments.bench.timing import median_times
 from vsgjax.agents import make_agent
-from vsgjax.agents.dreamer import prototypes
+from vsgjax.agents.dreamer.representation import prototype_losses as prototypes
 from vsgjax.config import make_config
 from vsgjax.envs import EnvSpec
 

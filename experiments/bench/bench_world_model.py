@@ -204,7 +204,7 @@ def measure_breakdown(model: str, size: str, repeats: int) -> list[dict]:
 
     def decoder_and_heads(p):
         target = image_to_float(images)
-        image = normal_log_prob(wm.decode(p, feats), target, event_dims=3).mean()
+        image = normal_log_prob(wm.representation.decode(p, feats), target, event_dims=3).mean()
         return image + wm.reward_mean(p, feats).mean() + wm.discount_logits(p, feats).mean()
 
     rows = []

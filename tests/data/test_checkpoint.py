@@ -122,3 +122,14 @@ def test_typed_keys_and_non_json_meta_are_rejected(tmp_path):
     with pytest.raises(TypeError):
         checkpoint.save(tmp_path, 0, make_state(), {"rng": np.random.default_rng(0)})
     assert checkpoint.list_checkpoints(tmp_path) == []
+
+
+def test_a_partial_target_reads_only_its_subtrees(tmp_path):
+    state = make_state()
+    checkpoint.save(tmp_path, 1, state)
+    part = dict(state, opt=None, updates=None)  # None: a subtree left out
+    restored = checkpoint.restore(tmp_path, part, partial=True)
+    assert_trees_equal(restored.tree, part)
+    with pytest.raises(CheckpointMismatchError, match=r"1 wanted; leaf 0 is none, wanted "
+                                                      r"\['extra'\]"):
+        checkpoint.restore(tmp_path, {"extra": jnp.zeros(1)}, partial=True)

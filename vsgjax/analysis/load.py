@@ -179,7 +179,7 @@ def _feats(model: WorldModel, states) -> jax.Array:
 @functools.partial(jax.jit, static_argnames="config")
 def _decode(config: Config, wm_params: dict, states) -> jax.Array:
     model = api.world_model_for(config, wm_params)
-    return float_to_image(model.decode_frames(wm_params, _feats(model, states)))
+    return float_to_image(model.representation.decode_frames(wm_params, _feats(model, states)))
 
 
 @functools.partial(jax.jit, static_argnames="config")

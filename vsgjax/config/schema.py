@@ -157,7 +157,7 @@ class DrQConfig:
 @dataclass(frozen=True)
 class PrototypeConfig:
     """DreamerPro's prototypical representation (fdeng18/dreamer-pro, ``configs.yaml``;
-    vsgjax/agents/dreamer/prototypes.py): read by the ``prototypes`` models (dreamerpro,
+    vsgjax/agents/dreamer/representation/): read by the ``prototypes`` models (dreamerpro,
     vsgpro) instead of a decoder."""
 
     prototypes: int = 2500  # number of prototypes

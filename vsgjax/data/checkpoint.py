@@ -183,10 +183,12 @@ def _to_numpy(path: str, leaf: Any) -> np.ndarray:
     return np.asarray(jax.device_get(leaf))
 
 
-def decode(data: bytes, target: Any) -> tuple[Any, dict]:
-    """Inverse of :func:`encode`: fill ``target``'s structure with the saved leaves."""
+def decode(data: bytes, target: Any, partial: bool = False) -> tuple[Any, dict]:
+    """Inverse of :func:`encode`: fill ``target``'s structure with the saved leaves (with
+    ``partial``, those at the target's paths: :func:`_fill`)."""
     content = serialization.msgpack_restore(_payload(data))
-    return _fill(target, content["paths"], content["leaves"]), json.loads(content["meta"])
+    return (_fill(target, content["paths"], content["leaves"], partial),
+            json.loads(content["meta"]))
 
 
 def verify(path: str | os.PathLike) -> None:
@@ -228,10 +230,19 @@ def _payload(data: bytes) -> bytes:
     return payload
 
 
-def _fill(target: Any, paths: list[str], leaves: dict[str, Any]) -> Any:
-    """Rebuild ``target``'s tree from saved leaves; leaves take the target leaves' types."""
+def _fill(target: Any, paths: list[str], leaves: dict[str, Any], partial: bool = False) -> Any:
+    """Rebuild ``target``'s tree from saved leaves; leaves take the target leaves' types.
+
+    With ``partial`` the target may leave subtrees out (``None`` in their place): only the
+    saved leaves at the target's paths are read, and every target path must be saved.
+    """
     target_with_paths, treedef = jax.tree_util.tree_flatten_with_path(target)
     target_paths = [jax.tree_util.keystr(path) for path, _ in target_with_paths]
+    if partial:
+        wanted = set(target_paths)
+        kept = [i for i, path in enumerate(paths) if path in wanted]
+        paths = [paths[i] for i in kept]
+        leaves = {str(j): leaves[str(i)] for j, i in enumerate(kept)}
     if target_paths != list(paths):
         pairs = zip(target_paths, paths, strict=False)  # the shorter list's length
         first = next((i for i, (a, b) in enumerate(pairs) if a != b),
@@ -263,15 +274,17 @@ def _like(path: str, value: Any, like: Any) -> Any:
     return jax.numpy.asarray(value) if wants_jax else value
 
 
-def load(path: str | os.PathLike, target: Any) -> tuple[Any, dict]:
-    """Read one checkpoint file into ``target``'s structure; raises CorruptCheckpointError."""
-    return decode(Path(path).read_bytes(), target)
+def load(path: str | os.PathLike, target: Any, partial: bool = False) -> tuple[Any, dict]:
+    """Read one checkpoint file into ``target``'s structure (all of it, or with ``partial``
+    the part the target names); raises CorruptCheckpointError."""
+    return decode(Path(path).read_bytes(), target, partial)
 
 
-def restore(directory: str | os.PathLike, target: Any,
-            max_step: int | None = None) -> Checkpoint | None:
+def restore(directory: str | os.PathLike, target: Any, max_step: int | None = None,
+            partial: bool = False) -> Checkpoint | None:
     """The newest readable checkpoint in ``directory`` filled into ``target``, or None if none;
-    with ``max_step``, the newest of a step up to it.
+    with ``max_step``, the newest of a step up to it; with ``partial``, only the saved leaves
+    at the target's paths (a target with ``None`` for the subtrees it leaves out).
 
     Corrupt files are skipped with a warning naming them, falling back to older checkpoints.
     """
@@ -279,7 +292,7 @@ def restore(directory: str | os.PathLike, target: Any,
         if max_step is not None and step > max_step:
             continue
         try:
-            tree, meta = load(path, target)
+            tree, meta = load(path, target, partial)
         except (CorruptCheckpointError, OSError) as error:
             warnings.warn(
                 f"skipping corrupt checkpoint {path}: {type(error).__name__}: {error}",

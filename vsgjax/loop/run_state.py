@@ -9,8 +9,7 @@ import jax
 
 from vsgjax.agents.interface import Agent
 from vsgjax.data import checkpoint
-from vsgjax.envs import make_device_task
-from vsgjax.loop.device_program import DeviceProgram
+from vsgjax.loop.device_program import LoopState
 from vsgjax.loop.which_loop import resolve_loop
 
 
@@ -23,7 +22,8 @@ def restore_latest(ckpt_dir: Path, agent: Agent, key: jax.Array,
                    max_step: int | None = None) -> checkpoint.Checkpoint | None:
     """The newest readable checkpoint (of a step up to ``max_step``, if given) filled into the
     agent's structure, or None. A device-loop run's checkpoint holds its whole loop state
-    (agent, device replay, key): its tree is given as ``{"agent", "key"}`` too."""
+    (agent, device replay, key): its agent and key are read alone, without the replay, and
+    given as ``{"agent", "key"}`` too."""
     if resolve_loop(agent.config) == "device":
         return _restore_device_run(ckpt_dir, agent, key, max_step)
     target = checkpoint_tree(jax.eval_shape(agent.init, key), key)  # shapes only, no compute
@@ -32,9 +32,10 @@ def restore_latest(ckpt_dir: Path, agent: Agent, key: jax.Array,
 
 def _restore_device_run(ckpt_dir: Path, agent: Agent, key: jax.Array,
                         max_step: int | None) -> checkpoint.Checkpoint | None:
-    program = DeviceProgram(agent.config, make_device_task(agent.config.env))
-    restored = checkpoint.restore(ckpt_dir, {"loop": jax.eval_shape(program.init, key)},
-                                  max_step)
+    """The loop state's agent and key, filled into the agent's structure: the replay's
+    structure is the device program's, which reading the parameters does not need."""
+    template = LoopState(jax.eval_shape(agent.init, key), None, key)
+    restored = checkpoint.restore(ckpt_dir, {"loop": template}, max_step, partial=True)
     if restored is None:
         return None
     state = restored.tree["loop"]

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from tests.support.doc_tables import cell_value, config_value, table_rows
-from vsgjax.agents.dreamer import prototypes
 from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.agents.dreamer.open_loop import open_loop_errors, open_loop_video
+from vsgjax.agents.dreamer.representation import prototype_losses as prototypes
 from vsgjax.config import ConfigError, make_config, to_dict
 from vsgjax.registry.agents import prototype_models
 
@@ -148,7 +148,8 @@ def test_the_loss_has_the_prototype_terms_and_no_reconstruction(updates):
 def test_the_world_model_trains_on_two_augmented_views(updates):
     agent, batch, states, _ = updates
     wm = agent.world_model
-    params, views = wm.training_views(states[0].params["wm"], batch, jax.random.PRNGKey(1))
+    params, views = wm.representation.training_views(states[0].params["wm"], batch,
+                                                     jax.random.PRNGKey(1))
     assert views["image"].shape == (2 * BATCH, LENGTH, 64, 64, 3)
     np.testing.assert_array_equal(views["reward"], np.concatenate([batch["reward"]] * 2))
     assert not np.allclose(views["image"][:BATCH], views["image"][BATCH:])
@@ -173,7 +174,7 @@ def test_the_open_loop_test_predicts_rewards_only(updates):
     assert open_loop_video(agent.config, wm_params, episode, jax.random.PRNGKey(0)) is None
     feat = jnp.zeros((agent.world_model.dynamics.feat_dim,))
     with pytest.raises(ValueError, match="has no decoder"):
-        agent.world_model.decode(wm_params, feat)
+        agent.world_model.representation.decode(wm_params, feat)
 
 
 def test_acting_needs_no_targets(updates):

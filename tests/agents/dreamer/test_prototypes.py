@@ -1,4 +1,5 @@
-"""DreamerPro's prototype losses, augmentation and EMA target (vsgjax.agents.dreamer.prototypes).
+"""DreamerPro's prototype losses, augmentation and EMA target
+(vsgjax.agents.dreamer.representation.prototype_losses).
 
 Every expected value is re-derived here in numpy (float64) from the authors' release
 (fdeng18/dreamer-pro, ``DreamerPro/``), cited in each test, or from TensorFlow's
@@ -13,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from vsgjax.agents.dreamer.prototypes import (
+from vsgjax.agents.dreamer.representation.prototype_losses import (
     ema_update,
     freeze,
     l2_normalize,

@@ -22,7 +22,8 @@ from vsgjax.agents.dreamer.networks import (
     image_to_float,
     normal_log_prob,
 )
-from vsgjax.agents.dreamer.world_model import WorldModel, balanced_kl_loss, image_mse, per_step_kl
+from vsgjax.agents.dreamer.representation.reconstruction import gaussian_mse
+from vsgjax.agents.dreamer.world_model import WorldModel, balanced_kl_loss, per_step_kl
 from vsgjax.config import make_config
 from vsgjax.registry.agents import dreamer_models, prototype_models
 
@@ -277,7 +278,7 @@ def test_heads_without_discount_and_with_tanh_reward():
     assert "discount" not in params and config.wm.reward_tanh
     feat = jnp.zeros((5, model.dynamics.feat_dim))
     np.testing.assert_allclose(model.discount(params, feat), np.full(5, config.ac.gamma))
-    assert jax.eval_shape(model.decode, params, feat).shape == (5, 64, 64, 1)
+    assert jax.eval_shape(model.representation.decode, params, feat).shape == (5, 64, 64, 1)
     batch = random_batch(3, 1, 3, obs_shape=(64, 64, 1), action_dim=4)
     _, (metrics, _) = jax.eval_shape(model.loss, params, batch, jax.random.PRNGKey(0))
     assert "discount_loss" not in metrics and "reward_loss" in metrics
@@ -292,7 +293,7 @@ def test_image_mse_recovers_the_squared_error_from_the_gaussian_image_loss():
     rng = np.random.default_rng(0)
     mean, target = rng.uniform(-0.5, 0.5, (2, 4, 64, 64, 3)).astype(np.float32)
     loss = -normal_log_prob(mean, target, event_dims=3).mean()
-    np.testing.assert_allclose(image_mse(loss, 64 * 64 * 3), np.square(mean - target).mean(),
+    np.testing.assert_allclose(gaussian_mse(loss, 64 * 64 * 3), np.square(mean - target).mean(),
                                rtol=1e-3)
 
 
@@ -300,8 +301,9 @@ def test_decode_frames_in_chunks_equals_one_decode():
     model = WorldModel(make_config("bbs_basic", "vsg", "debug"))
     params = model.init(jax.random.PRNGKey(0))
     feats = jax.random.normal(jax.random.PRNGKey(1), (3, 5, model.dynamics.feat_dim))
-    np.testing.assert_allclose(model.decode_frames(params, feats, chunk=4),
-                               model.decode(params, feats), atol=1e-5)
+    decoder = model.representation
+    np.testing.assert_allclose(decoder.decode_frames(params, feats, chunk=4),
+                               decoder.decode(params, feats), atol=1e-5)
 
 
 @pytest.mark.parametrize("alignment", ["release", "next_state"])

@@ -40,8 +40,9 @@ class AgentState(NamedTuple):
     """Everything training updates (a pytree; checkpoint it whole).
 
     ``params``: ``{"wm", "actor", "critic", "slow_critic"}`` (and ``"wm_targets"``, the EMA
-    target networks of a prototype model, DreamerPro's); ``opt``: optimizer states
-    ``{"wm", "actor", "critic"}``; ``step``: number of completed updates (int32 scalar).
+    target networks of a representation that has them, DreamerPro's prototypes); ``opt``:
+    optimizer states ``{"wm", "actor", "critic"}``; ``step``: number of completed updates
+    (int32 scalar).
     """
 
     params: dict
@@ -98,8 +99,9 @@ class DreamerAgent:
         wm_key, ac_key = jax.random.split(key)
         params = {"wm": self.world_model.init(wm_key),
                   **self.behaviour.init(ac_key, self.world_model.dynamics.feat_dim)}
-        if self.world_model.uses_prototypes:
-            params["wm_targets"] = self.world_model.init_targets(jax.random.fold_in(key, 1))
+        targets = self.world_model.representation.init_targets(jax.random.fold_in(key, 1))
+        if targets is not None:
+            params["wm_targets"] = targets
         opt = {name: optimizer.init(params[name]) for name, optimizer in self.optimizers.items()}
         return AgentState(params, opt, jnp.zeros((), jnp.int32))
 
@@ -127,22 +129,24 @@ class DreamerAgent:
         when it is
         not 0) start the imagination, which uses the freshly updated world model. The slow
         critic is copied from the critic at the start of the update (``ac.alignment=release``)
-        or after it (``next_state``). A prototype model trains world model and actor-critic on
-        two augmented views of the batch, its prototypes' gradient frozen for the first updates,
-        and moves its EMA targets after the world-model step. Returns ``(state, metrics)`` with
-        keys ``wm/*``, ``actor/*``, ``critic/*`` and ``imag/*``.
+        or after it (``next_state``). The world model's representation component decides what
+        world model and actor-critic train on (a prototype model: two augmented views of the
+        batch), masks the world model's gradient (the prototypes' frozen for the first
+        updates), and moves its EMA targets, if any, after the world-model step. Returns
+        ``(state, metrics)`` with keys ``wm/*``, ``actor/*``, ``critic/*`` and ``imag/*``.
         """
         wm_key, ac_key = jax.random.split(key)
         params, opt, optimizers = dict(state.params), dict(state.opt), self.optimizers
         behaviour, every, wm = self.behaviour, self.config.ac.slow_critic_every, self.world_model
-        wm_params, batch = wm.training_views(params["wm"], batch, jax.random.fold_in(key, 1))
+        rep = wm.representation
+        wm_params, batch = rep.training_views(params["wm"], batch, jax.random.fold_in(key, 1))
         grad_fn = jax.value_and_grad(wm.loss, has_aux=True)
         (_, (wm_metrics, posts)), grads = grad_fn(wm_params, batch, wm_key,
                                                   params.get("wm_targets"))
-        grads = wm.freeze_prototypes(grads, state.step)
+        grads = rep.mask_gradients(grads, state.step)
         wm_params, opt["wm"] = _apply(optimizers["wm"], grads, opt["wm"], wm_params)
-        if wm.uses_prototypes:
-            params["wm_targets"] = wm.update_targets(wm_params, params["wm_targets"], state.step)
+        if "wm_targets" in params:
+            params["wm_targets"] = rep.update_targets(wm_params, params["wm_targets"], state.step)
 
         slow_critic = params["slow_critic"]
         if behaviour.release:

@@ -34,9 +34,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vsgjax.agents.dreamer.api import DEFAULT_SEED, TrainedParams, world_model_for
 from vsgjax.agents.dreamer.cells import BERNOULLI, open_probability
 from vsgjax.agents.dreamer.gates import bernoulli_kl, probability_kl
+from vsgjax.agents.dreamer.inference import DEFAULT_SEED, world_model_for
+from vsgjax.agents.dreamer.trained_params import TrainedParams
 from vsgjax.agents.dreamer.world_model import WorldModel, obs_spec_of
 from vsgjax.agents.interface import AgentParams
 from vsgjax.config import Config

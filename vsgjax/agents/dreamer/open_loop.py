@@ -36,8 +36,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from vsgjax.agents.dreamer import api
+from vsgjax.agents.dreamer.inference import imagine, observe, world_model_for
 from vsgjax.agents.dreamer.networks import float_to_image, image_to_float
+from vsgjax.agents.dreamer.world_model import WorldModel
 from vsgjax.config import Config
 from vsgjax.episode_keys import IMAGE_KEY
 
@@ -51,24 +52,24 @@ ERROR_INPUTS = ("action", "reward", "is_first")  # what the errors read besides 
 @functools.partial(jax.jit, static_argnames="config")
 def _reconstruct(config: Config, params: dict, posts) -> jax.Array:
     """Decoded posterior states [S, T] -> uint8 images [S, T, H, W, C]."""
-    model = api.world_model_for(config, params)
+    model = world_model_for(config, params)
     feats = jax.vmap(jax.vmap(model.dynamics.feat))(posts)
-    return float_to_image(model.decode_frames(params, feats))
+    return float_to_image(model.representation.decode_frames(params, feats))
 
 
 def observe_then_imagine(config: Config, wm_params: dict, seq: dict, key: jax.Array,
                          context: int, horizon: int) -> tuple:
     """The open-loop test's two passes on a batch of sequences ``[N, >= context + horizon]``
     (the episode keys, starting at an episode's first step): the posteriors of steps
-    ``0 .. context-1`` and :func:`vsgjax.agents.dreamer.api.imagine`'s ``horizon`` imagined
+    ``0 .. context-1`` and :func:`vsgjax.agents.dreamer.inference.imagine`'s ``horizon`` imagined
     steps from the last one under the actions ``context .. context+horizon-1`` (the
     alignment in the module docstring). ``key`` is split into the observing and the imagining
     key. Returns ``(posts [N, context], imagined [N, horizon])``."""
     observe_key, imagine_key = jax.random.split(key)
-    posts, _ = api.observe(config, wm_params, {k: v[:, :context] for k, v in seq.items()},
+    posts, _ = observe(config, wm_params, {k: v[:, :context] for k, v in seq.items()},
                            observe_key)
     start = jax.tree.map(lambda x: x[:, -1], posts)
-    imagined = api.imagine(wm_params, start, horizon, config=config, key=imagine_key,
+    imagined = imagine(wm_params, start, horizon, config=config, key=imagine_key,
                            actions=seq["action"][:, context:context + horizon])
     return posts, imagined
 
@@ -118,7 +119,7 @@ def open_loop_errors(config: Config, wm_params: dict, episodes: dict, key: jax.A
     if steps < context + horizon:
         raise ValueError(f"episodes of {steps} steps are shorter than context + horizon = "
                          f"{context + horizon}")
-    model = api.world_model_for(config, wm_params)
+    model = world_model_for(config, wm_params)
     seq = {k: jnp.asarray(episodes[k])[:, :context + horizon]
            for k in (*model.obs_shape.keys, *ERROR_INPUTS)}
     return _errors(config, wm_params, seq, key, context, horizon)
@@ -127,13 +128,25 @@ def open_loop_errors(config: Config, wm_params: dict, episodes: dict, key: jax.A
 @functools.partial(jax.jit, static_argnames=("config", "context", "horizon"))
 def _errors(config: Config, wm_params: dict, seq: dict, key: jax.Array, context: int,
             horizon: int) -> dict[str, jax.Array]:
-    model = api.world_model_for(config, wm_params)
+    model = world_model_for(config, wm_params)
     _, imagined = observe_then_imagine(config, wm_params, seq, key, context, horizon)
     truth = {k: v[:, context:] for k, v in seq.items()}
-    squared, values = [jnp.full((seq["action"].shape[0], horizon), jnp.nan)], 0
-    if model.decodes:
-        squared, values = [], 0
-    if model.has_image and model.decodes:
+    if model.representation.decodes:
+        obs_mse = _observation_mse(model, imagined, truth)
+    else:
+        obs_mse = jnp.full(horizon, jnp.nan)
+    reward = truth["reward"].astype(jnp.float32)
+    if config.wm.reward_tanh:
+        reward = jnp.tanh(reward)
+    reward_mse = jnp.square(imagined["rewards"].astype(jnp.float32) - reward).mean(0)
+    return {"obs_mse": obs_mse, "reward_mse": reward_mse}
+
+
+def _observation_mse(model: WorldModel, imagined: dict, truth: dict) -> jax.Array:
+    """[H] squared error of the decoded means, averaged over the episodes and every
+    observation value (pixels in the decoder's float scale)."""
+    squared, values = [], 0
+    if model.has_image:
         error = imagined["image_means"].astype(jnp.float32) - image_to_float(truth[IMAGE_KEY])
         squared.append(jnp.square(error).reshape(error.shape[:2] + (-1,)).sum(-1))
         values += int(np.prod(error.shape[2:]))
@@ -142,12 +155,7 @@ def _errors(config: Config, wm_params: dict, seq: dict, key: jax.Array, context:
                  - truth[name].astype(jnp.float32))
         squared.append(jnp.square(error).sum(-1))
         values += error.shape[-1]
-    obs_mse = (sum(squared) / max(values, 1)).mean(0)
-    reward = truth["reward"].astype(jnp.float32)
-    if config.wm.reward_tanh:
-        reward = jnp.tanh(reward)
-    reward_mse = jnp.square(imagined["rewards"].astype(jnp.float32) - reward).mean(0)
-    return {"obs_mse": obs_mse, "reward_mse": reward_mse}
+    return (sum(squared) / max(values, 1)).mean(0)
 
 
 def shortened(steps: int) -> tuple[int, int] | None:
@@ -183,7 +191,7 @@ def open_loop_video(config: Config, wm_params: dict, episode: dict, key: jax.Arr
     """Frames for the run's open-loop video, shortening context and horizon (in the 15:35
     ratio, :func:`shortened`) for short episodes or sequences; None when the episode has fewer
     than 4 steps, no images (:func:`has_video`) or a model without a decoder."""
-    if not has_video(episode) or not api.world_model_for(config, wm_params).decodes:
+    if not has_video(episode) or not world_model_for(config, wm_params).representation.decodes:
         return None
     split = shortened(len(episode["image"]))
     if split is None:

@@ -1,11 +1,12 @@
-"""The world model: encoder, latent dynamics, decoder and heads, and its loss.
+"""The world model: encoder, latent dynamics, representation component and heads, and its
+loss.
 
-    L = -ln p(x|s) - reward_scale ln p(r|s) [- discount_scale ln p(γ|s)] + L_kl + L_gate
+    L = L_repr - reward_scale ln p(r|s) [- discount_scale ln p(γ|s)] + L_kl + L_gate
 
-The ``prototypes`` models (DreamerPro, VSGPro) have no decoder: ``-ln p(x|s)`` is replaced by
-DreamerPro's prototype losses (:mod:`vsgjax.agents.dreamer.prototypes`), computed over the
-whole batch of two augmented views, with targets from an EMA copy of the encoder and its
-projection (``targets``, kept by the agent).
+``L_repr`` is the representation component's (:mod:`vsgjax.agents.dreamer.representation`,
+chosen by the registry entry): ``-ln p(x|s)`` of the decoders (``reconstruction``), or
+DreamerPro's prototype losses over two augmented views of the batch with EMA targets kept by
+the agent (``prototypes``).
 
 (the discount head's target is γ·(1 − is_terminal) with ``ac.alignment=release``, as the
 release; 1 − is_terminal with ``next_state``)
@@ -19,14 +20,11 @@ nothing and the mask passes gradient into the gate probability); the free nats c
 over the whole batch, not each step. ``L_gate`` is the gate objective ``wm.gate_objective``
 of :mod:`vsgjax.agents.dreamer.gate_objectives` (the release's: the sparsity loss of
 :mod:`vsgjax.agents.dreamer.gates`). Log-likelihoods are summed over pixels (vector entries) and
-averaged over
-batch and time.
+averaged over batch and time.
 
 The observations x are the keys of an :class:`~vsgjax.observations.ObsSpec` (``wm.encoder``):
 the 64x64 ``image`` goes through the CNN, the vector keys (concatenated in key order) through
-an MLP; the embedding is the two concatenated (image first), and with both, -ln p(x|s) is the
-sum of the image's and the vectors' unit-variance Gaussian terms. The dynamics see only the
-embedding.
+an MLP; the embedding is the two concatenated (image first). The dynamics see only the embedding.
 
 All per-step terms are computed per sequence (:meth:`WorldModel.sequence_terms`, unbatched) and
 vmapped over the batch with one PRNG key per sequence. The networks' matmuls run in
@@ -37,36 +35,32 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from collections.abc import Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
 
-from vsgjax.agents.dreamer import gate_objectives, gates, prototypes
+from vsgjax.agents.dreamer import gate_objectives, gates
 from vsgjax.agents.dreamer.cells import open_probability
 from vsgjax.agents.dreamer.dynamics import make_dynamics
 from vsgjax.agents.dreamer.networks import (
     DECODER_KERNELS,
     HEAD_PREFIX,
     MLP,
-    ConvDecoder,
     ConvEncoder,
-    MLPDecoder,
     MLPEncoder,
     bernoulli_log_prob,
     embed_dim,
     image_to_float,
     normal_log_prob,
 )
+from vsgjax.agents.dreamer.representation import Representation, build_representation
 from vsgjax.agents.precision import compute_dtype
 from vsgjax.config import Config, ConfigError
 from vsgjax.observations import IMAGE_KEY, ObsSpec, obs_spec
-from vsgjax.registry.agents import agent_entry
 
 sg = jax.lax.stop_gradient
 IMAGE_SIZE = 64  # the CNN encodes and decodes 64x64 images
-RECONSTRUCTION, PROTOTYPES = "reconstruction", "prototypes"  # a registry entry's representation
 
 
 def per_step_kl(dyn, lhs, rhs, mask: jax.Array | None = None) -> jax.Array:
@@ -132,23 +126,26 @@ def obs_spec_of(params: dict) -> ObsSpec:
 
 @dataclasses.dataclass(frozen=True)
 class WorldModel:
-    """Encoder, dynamics, decoder, reward (+ discount) heads. Hashable: usable as a jit static.
+    """Encoder, dynamics, representation, reward (+ discount) heads. Hashable: usable as a jit
+    static.
 
     ``obs_shape``: an image shape ``(64, 64, C)`` (the spec ``{"image": (64, 64, C)}``), a
     ``{key: shape}`` dict or an :class:`~vsgjax.observations.ObsSpec`; stored as the ObsSpec.
+    ``representation``: the component the registry entry names (decoders or prototypes), built
+    from the other fields.
     """
 
     config: Config
     obs_shape: ObsSpec | Mapping[str, Sequence[int]] | Sequence[int] = (64, 64, 3)
     action_dim: int = 2
+    representation: Representation = dataclasses.field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         spec = obs_spec(self.obs_shape)
         check_encoders(spec, self.config.wm.encoder)
-        if self.uses_prototypes and (spec.vector_keys or not spec.image_keys):
-            raise ValueError(f"model {self.config.model.name!r} learns from prototypes of "
-                             f"the image alone; the observation spec is {spec.shapes}")
         object.__setattr__(self, "obs_shape", spec)
+        object.__setattr__(self, "representation",
+                           build_representation(self.config, spec, self.embed_size))
 
     # --- modules ---------------------------------------------------------------------------
 
@@ -159,17 +156,6 @@ class WorldModel:
     @property
     def vector_keys(self) -> tuple[str, ...]:
         return self.obs_shape.vector_keys
-
-    @property
-    def uses_prototypes(self) -> bool:
-        """Whether the model learns from prototypes (DreamerPro) rather than a decoder."""
-        entry = agent_entry(self.config.model.name)
-        return entry.option("representation", RECONSTRUCTION) == PROTOTYPES
-
-    @property
-    def decodes(self) -> bool:
-        """Whether the model has decoders (every model but the prototype ones)."""
-        return not self.uses_prototypes
 
     @functools.cached_property
     def dynamics(self):
@@ -185,34 +171,8 @@ class WorldModel:
         return ConvEncoder(self.config.wm.cnn_depth, self.dtype)
 
     @property
-    def decoder(self) -> ConvDecoder:
-        return ConvDecoder(self.config.wm.cnn_depth, self.obs_shape.shapes[IMAGE_KEY][-1],
-                           self.dtype)
-
-    @property
-    def projection(self) -> MLP:
-        """DreamerPro's ``obs_proj`` / ``feat_proj``: one linear layer to ``proto.dim``."""
-        return MLP(0, 1, (self.config.proto.dim,), dtype=self.dtype)
-
-    @property
     def mlp_encoder(self) -> MLPEncoder:
         return MLPEncoder(self.config.wm.mlp_layers, self.config.wm.mlp_units, self.dtype)
-
-    @property
-    def mlp_decoder(self) -> MLPDecoder:
-        sizes = tuple((key, self.obs_shape.shapes[key][0]) for key in self.vector_keys)
-        return MLPDecoder(self.config.wm.mlp_layers, self.config.wm.mlp_units, sizes, self.dtype)
-
-    @property
-    def reconstruction_sizes(self) -> dict[str, int]:
-        """``{"image": pixel values, "vector": vector entries}`` of the decoders there are: the
-        names of the ``<name>_loss`` / ``<name>_mse`` metrics."""
-        if self.uses_prototypes:
-            return {}
-        sizes = {"image": math.prod(self.obs_shape.shapes[IMAGE_KEY])} if self.has_image else {}
-        if self.vector_keys:
-            sizes["vector"] = self.obs_shape.vector_size
-        return sizes
 
     @property
     def embed_size(self) -> int:
@@ -234,9 +194,9 @@ class WorldModel:
     # --- parameters --------------------------------------------------------------------------
 
     def init(self, key: jax.Array) -> dict:
-        """Parameters ``{[encoder, decoder,] [mlp_encoder, mlp_decoder,] dynamics, reward[,
-        discount]}`` (plain nested dicts): the CNN pair with an image, the MLP pair with vector
-        keys; with prototypes ``{encoder, proto, dynamics, reward}`` (no decoder).
+        """Parameters ``{[encoder,] [mlp_encoder,] dynamics, reward[, discount]}`` and the
+        representation's (plain nested dicts): the CNN with an image, the MLP with vector keys;
+        the decoders ``decoder`` / ``mlp_decoder``, or prototypes ``proto``.
 
         Pure; wrap in ``jax.jit`` (as :func:`vsgjax.agents.dreamer.api.init` does) to compile
         the many
@@ -249,69 +209,16 @@ class WorldModel:
         if self.has_image:
             image = jax.ShapeDtypeStruct(self.obs_shape.shapes[IMAGE_KEY], jnp.float32)
             params["encoder"] = self.encoder.lazy_init(k_enc, image)["params"]
-            if self.uses_prototypes:
-                params["proto"] = self._init_prototypes(k_dec, feat)
-            else:
-                params["decoder"] = self.decoder.lazy_init(k_dec, feat)["params"]
         if self.vector_keys:
             vector = jax.ShapeDtypeStruct((self.obs_shape.vector_size,), jnp.float32)
             params["mlp_encoder"] = self.mlp_encoder.lazy_init(
                 jax.random.fold_in(k_enc, 1), vector)["params"]
-            params["mlp_decoder"] = self.mlp_decoder.lazy_init(
-                jax.random.fold_in(k_dec, 1), feat)["params"]
+        params.update(self.representation.init(k_dec, feat))
         params["dynamics"] = self.dynamics.init(k_dyn, self.embed_size, self.action_dim)
         params["reward"] = self.reward_head.lazy_init(k_rew, feat)["params"]
         if self.config.wm.discount_head:
             params["discount"] = self.discount_head.lazy_init(k_dis, feat)["params"]
         return params
-
-    def _init_prototypes(self, key: jax.Array, feat: jax.ShapeDtypeStruct) -> dict:
-        """``{prototypes [K, D] ~ N(0, 1), obs_proj, feat_proj}`` (the release's RSSM and its
-        ``proto_loss`` layers)."""
-        k_proto, k_obs, k_feat = jax.random.split(key, 3)
-        proto = self.config.proto
-        embed = jax.ShapeDtypeStruct((self.embed_size,), jnp.float32)
-        return {"prototypes": jax.random.normal(k_proto, (proto.prototypes, proto.dim)),
-                "obs_proj": self.projection.lazy_init(k_obs, embed)["params"],
-                "feat_proj": self.projection.lazy_init(k_feat, feat)["params"]}
-
-    def init_targets(self, key: jax.Array) -> dict:
-        """The EMA target networks ``{encoder, obs_proj}`` of a prototype model, initialised
-        on their own (the release's ``_ema_encoder``, ``_ema_obs_proj``; its first update copies
-        the online networks into them: :meth:`update_targets`)."""
-        k_enc, k_proj = jax.random.split(key)
-        image = jax.ShapeDtypeStruct(self.obs_shape.shapes[IMAGE_KEY], jnp.float32)
-        embed = jax.ShapeDtypeStruct((self.embed_size,), jnp.float32)
-        return {"encoder": self.encoder.lazy_init(k_enc, image)["params"],
-                "obs_proj": self.projection.lazy_init(k_proj, embed)["params"]}
-
-    def update_targets(self, params: dict, targets: dict, step: jax.Array) -> dict:
-        """The targets after update ``step``: an EMA of the online encoder and ``obs_proj``
-        with ``proto.ema_fraction``, a copy after the first update."""
-        online = {"encoder": params["encoder"], "obs_proj": params["proto"]["obs_proj"]}
-        return prototypes.ema_update(online, targets, self.config.proto.ema_fraction, step == 0)
-
-    def training_views(self, params: dict, batch: dict, key: jax.Array) -> tuple[dict, dict]:
-        """What one update trains on: ``(params, batch)`` as they are for a reconstruction
-        model; for a prototype model the prototypes L2-normalised (the release assigns them
-        normalised before every loss) and the batch as two augmented views ``[2B, T]``."""
-        if not self.uses_prototypes:
-            return params, batch
-        proto = dict(params["proto"], prototypes=prototypes.l2_normalize(
-            params["proto"]["prototypes"]))
-        floats = dict(batch, **{IMAGE_KEY: image_to_float(batch[IMAGE_KEY])})
-        return dict(params, proto=proto), prototypes.two_views(floats, key,
-                                                               self.config.proto.shift)
-
-    def freeze_prototypes(self, grads: dict, step: jax.Array) -> dict:
-        """``grads`` with the prototypes' gradient zeroed for the first ``proto.freeze_updates``
-        updates (no-op for a reconstruction model)."""
-        if not self.uses_prototypes:
-            return grads
-        frozen = step < self.config.proto.freeze_updates
-        proto = dict(grads["proto"], prototypes=prototypes.freeze(grads["proto"]["prototypes"],
-                                                                  frozen))
-        return dict(grads, proto=proto)
 
     # --- pieces the actor-critic and notebooks use (any leading batch dims) -----------------
 
@@ -337,28 +244,6 @@ class WorldModel:
     def vector_input(self, obs: Mapping) -> jax.Array:
         """The vector keys of ``obs`` as float32, concatenated in key order: [..., D]."""
         return jnp.concatenate([obs[key].astype(jnp.float32) for key in self.vector_keys], -1)
-
-    def decode(self, params: dict, feat: jax.Array) -> jax.Array:
-        """Features [..., F] -> mean image [..., 64, 64, C] in [-0.5, 0.5] units."""
-        if not self.decodes:
-            raise ValueError(f"model {self.config.model.name!r} has no decoder: it learns "
-                             f"from prototypes, and its states cannot be drawn as images")
-        if not self.has_image:
-            raise ValueError(f"no image to decode: the observation spec is "
-                             f"{self.obs_shape.shapes} (decode_vectors decodes vector keys)")
-        return self.decoder.apply({"params": params["decoder"]}, feat)
-
-    def decode_vectors(self, params: dict, feat: jax.Array) -> dict[str, jax.Array]:
-        """Features [..., F] -> ``{vector key: mean [..., D_key]}``."""
-        return self.mlp_decoder.apply({"params": params["mlp_decoder"]}, feat)
-
-    def decode_frames(self, params: dict, feat: jax.Array, chunk: int = 256) -> jax.Array:
-        """:meth:`decode` of any number of frames, ``chunk`` at a time (for viewing, not
-        training): the decoder's patch matrices grow with the frames decoded at once (12,000
-        imagined frames at the paper size would need ~40 GB in one go)."""
-        flat = feat.reshape((-1, feat.shape[-1]))
-        means = jax.lax.map(lambda f: self.decode(params, f), flat, batch_size=chunk)
-        return means.reshape(feat.shape[:-1] + means.shape[1:])
 
     def reward_mean(self, params: dict, feat: jax.Array) -> jax.Array:
         """Mean of the reward Normal(σ=1) (in tanh units when ``reward_tanh``)."""
@@ -409,7 +294,7 @@ class WorldModel:
         feats = jax.vmap(dyn.feat)(posts)
         reward = jnp.tanh(seq["reward"]) if wm.reward_tanh else seq["reward"]
         terms = {
-            **self._observation_terms(params, embeds, feats, seq),
+            **self.representation.sequence_terms(params, embeds, feats, seq),
             "reward_logp": normal_log_prob(self.reward_mean(params, feats), reward),
             "kl_rep": self._kl(posts, sg(priors), posts),
             "kl_dyn": self._kl(sg(posts), priors, posts),
@@ -424,31 +309,6 @@ class WorldModel:
             terms["gate_sample"] = jax.vmap(dyn.gates)(posts)[0]
             terms["gate_logit"] = jax.vmap(dyn.gate_logits)(posts)
         return terms, posts
-
-    def _observation_terms(self, params: dict, embeds: jax.Array, feats: jax.Array,
-                           seq: dict) -> dict:
-        """The observation's per-step terms: its log-likelihoods, or with prototypes the raw
-        projections ``obs_proj`` (of the embedding) and ``feat_proj`` (of the features), [T, D],
-        for the batch-wide prototype losses."""
-        if not self.uses_prototypes:
-            return self._obs_log_probs(params, feats, seq)
-        project = lambda name, x: self.projection.apply({"params": params["proto"][name]}, x)
-        return {"obs_proj": project("obs_proj", embeds), "feat_proj": project("feat_proj", feats)}
-
-    def _obs_log_probs(self, params: dict, feats: jax.Array, seq: dict) -> dict:
-        """``image_logp`` (summed over pixels) and/or ``vector_logp`` (summed over every
-        vector key's entries), each [T]: log N(x | decoder mean, 1)."""
-        terms = {}
-        if self.has_image:
-            target = image_to_float(seq[IMAGE_KEY])
-            terms["image_logp"] = normal_log_prob(self.decode(params, feats), target,
-                                                  event_dims=3)
-        if self.vector_keys:
-            means = self.decode_vectors(params, feats)
-            terms["vector_logp"] = sum(
-                normal_log_prob(means[key], seq[key].astype(jnp.float32), event_dims=1)
-                for key in self.vector_keys)
-        return terms
 
     def _kl(self, lhs, rhs, posts, masked: bool | None = None) -> jax.Array:
         """Per-step KL(lhs || rhs) [T], gate-masked if ``wm.kl_masked`` (or ``masked``)."""
@@ -474,28 +334,21 @@ class WorldModel:
 
         ``posts`` are the posterior states with leading [B, T] dims (the actor-critic's start
         states). ``metrics`` holds every loss term, both KL directions, entropies and gate stats.
-        A prototype model takes the batch of :meth:`training_views` and its EMA ``targets``.
+        A representation with EMA targets (prototypes) takes the batch of its
+        ``training_views`` and its ``targets``.
         """
-        wm = self.config.wm
-        if self.uses_prototypes and targets is None:
-            raise ValueError(f"model {self.config.model.name!r} learns from prototypes: its "
-                             f"loss needs the EMA target networks (WorldModel.init_targets); "
-                             f"train it through vsgjax.agents.make_agent")
+        wm, rep = self.config.wm, self.representation
         keys = jax.random.split(key, batch["is_first"].shape[0])
         terms, posts = jax.vmap(self.sequence_terms, in_axes=(None, 0, 0))(params, batch, keys)
         kl_rep, kl_dyn = terms["kl_rep"].mean(), terms["kl_dyn"].mean()
-        recon = self.reconstruction_sizes
-        losses = {f"{name}_loss": -terms[f"{name}_logp"].mean() for name in recon}
-        losses.update({
+        losses = {
             "reward_loss": -wm.reward_scale * terms["reward_logp"].mean(),
             "kl_loss": balanced_kl_loss(kl_rep, kl_dyn, wm.kl_scale, wm.kl_balance, wm.kl_free),
-        })
+        }
         if wm.discount_head:
             losses["discount_loss"] = -wm.discount_scale * terms["discount_logp"].mean()
-        if self.uses_prototypes:
-            losses.update(self._prototype_losses(params, batch, terms, targets))
-        metrics = {f"{name}_mse": gaussian_mse(losses[f"{name}_loss"], size)
-                   for name, size in recon.items()}
+        losses = rep.join_losses(losses, params, batch, terms, targets)
+        metrics = rep.metrics(losses)
         metrics.update({
             "kl": kl_rep,
             "kl_prior_post": terms["kl_prior_post"].mean(),
@@ -512,30 +365,3 @@ class WorldModel:
         loss = sum(losses.values())
         metrics.update(losses, loss=loss)
         return loss, (metrics, posts)
-
-
-    def _prototype_losses(self, params: dict, batch: dict, terms: dict, targets: dict) -> dict:
-        """``swav_loss``, ``temp_loss``, ``norm_loss`` (scaled) of the batch's two views, the
-        targets' projections (L2-normalised, no gradient) scored against the prototypes."""
-        proto = self.config.proto
-        embed = self.encoder.apply({"params": targets["encoder"]}, batch[IMAGE_KEY])
-        ema_proj = prototypes.l2_normalize(
-            self.projection.apply({"params": targets["obs_proj"]}, embed).astype(jnp.float32))
-        raw = prototypes.prototype_losses(
-            params["proto"]["prototypes"], terms["obs_proj"], terms["feat_proj"], sg(ema_proj),
-            temperature=proto.temperature, sinkhorn_eps=proto.sinkhorn_eps,
-            sinkhorn_iters=proto.sinkhorn_iters, warm_up=proto.warm_up)
-        scales = {"swav": proto.swav_scale, "temp": proto.temp_scale, "norm": proto.norm_scale}
-        return {f"{name}_loss": scales[name] * value for name, value in raw.items()}
-
-
-def gaussian_mse(loss: jax.Array, size: int) -> jax.Array:
-    """Mean squared error per value (pixel or vector entry) from a unit-variance Gaussian loss.
-
-    ``loss = 0.5 * Σ err² + 0.5 * size * log(2π)``: the constant (11,291 nats for 64x64x3
-    pixels) hides how much the reconstruction improves; the MSE shows it.
-    """
-    return (2.0 * loss - size * math.log(2.0 * math.pi)) / size
-
-
-image_mse = gaussian_mse  # the name the image metric's helper has always had
