@@ -156,9 +156,10 @@ class GateStatistics:
         """Scalars for logging, under ``gates/*`` keys (host floats); ``gates/holding_<gap>``
         and the same for independent gates, ``gates/null_holding_<gap>`` (:func:`null_holding`),
         for each gap of ``gaps`` (default: those of :data:`HOLDING_GAPS` the window can
-        show, and a task's ``memory_gap`` if it fits); where the batch shows episode starts, the mean posterior gate probability at
-        episode step 1 (the gate that can store what the first observation shows: MemoryChain's
-        cue) and at the other steps, ``gates/prob_step1`` and ``gates/prob_other_steps``."""
+        show) and a task's ``memory_gap`` if it fits; where the batch shows episode starts,
+        the mean posterior gate probability at episode step 1 (the gate that can store what
+        the first observation shows: MemoryChain's cue) and at the other steps,
+        ``gates/prob_step1`` and ``gates/prob_other_steps``."""
         lengths = jnp.arange(1, self.closed_runs.shape[0] + 1)
         runs = self.closed_runs.sum()
         window = self.gate.shape[1]
