@@ -146,7 +146,7 @@ class WorldModel:
         spec = obs_spec(self.obs_shape)
         check_encoders(spec, self.config.wm.encoder)
         if self.uses_prototypes and (spec.vector_keys or not spec.image_keys):
-            raise ValueError(f"model {self.config.model.name!r} learns from prototypes of "
+            raise ValueError(f"model {self.config.agent!r} learns from prototypes of "
                              f"the image alone; the observation spec is {spec.shapes}")
         object.__setattr__(self, "obs_shape", spec)
 
@@ -163,7 +163,7 @@ class WorldModel:
     @property
     def uses_prototypes(self) -> bool:
         """Whether the model learns from prototypes (DreamerPro) rather than a decoder."""
-        entry = agent_entry(self.config.model.name)
+        entry = agent_entry(self.config.agent)
         return entry.option("representation", RECONSTRUCTION) == PROTOTYPES
 
     @property
@@ -173,12 +173,13 @@ class WorldModel:
 
     @functools.cached_property
     def dynamics(self):
-        return make_dynamics(self.config.model, gate_objectives.gate_cell(self.config.wm))
+        return make_dynamics(self.config.model, self.config.agent, self.config.precision,
+                             gate_objectives.gate_cell(self.config.wm))
 
     @property
     def dtype(self) -> jnp.dtype:
         """Compute dtype of every matmul and convolution (``model.precision``)."""
-        return compute_dtype(self.config.model.precision)
+        return compute_dtype(self.config.precision)
 
     @property
     def encoder(self) -> ConvEncoder:
@@ -341,7 +342,7 @@ class WorldModel:
     def decode(self, params: dict, feat: jax.Array) -> jax.Array:
         """Features [..., F] -> mean image [..., 64, 64, C] in [-0.5, 0.5] units."""
         if not self.decodes:
-            raise ValueError(f"model {self.config.model.name!r} has no decoder: it learns "
+            raise ValueError(f"model {self.config.agent!r} has no decoder: it learns "
                              f"from prototypes, and its states cannot be drawn as images")
         if not self.has_image:
             raise ValueError(f"no image to decode: the observation spec is "
@@ -460,13 +461,13 @@ class WorldModel:
         dyn = self.dynamics
         if not dyn.gated:
             raise ValueError(
-                f"wm.kl_masked needs a gated model, got model {self.config.model.name!r}")
+                f"wm.kl_masked needs a gated model, got model {self.config.agent!r}")
         sample = jax.vmap(dyn.gates)(posts)[0]
         latent_shape = jax.eval_shape(dyn.kl, dyn.initial(), dyn.initial()).shape
         if sample.shape[1:] != latent_shape:
             raise ValueError(
                 f"wm.kl_masked needs one gate per latent dimension (svsg); model "
-                f"{self.config.model.name!r} has gates {sample.shape[1:]} and KL {latent_shape}")
+                f"{self.config.agent!r} has gates {sample.shape[1:]} and KL {latent_shape}")
         return sample
 
     def loss(self, params: dict, batch: dict, key: jax.Array, targets: dict | None = None):
@@ -478,7 +479,7 @@ class WorldModel:
         """
         wm = self.config.wm
         if self.uses_prototypes and targets is None:
-            raise ValueError(f"model {self.config.model.name!r} learns from prototypes: its "
+            raise ValueError(f"model {self.config.agent!r} learns from prototypes: its "
                              f"loss needs the EMA target networks (WorldModel.init_targets); "
                              f"train it through vsgjax.agents.make_agent")
         keys = jax.random.split(key, batch["is_first"].shape[0])
