@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.doc_tables import cell_value, config_value, table_rows
+from tests.support.registry_names import example_tasks, one_model_per_agent
 from vsgjax.config import (
     MODELS,
     SIZES,
@@ -21,7 +22,7 @@ from vsgjax.config import (
 from vsgjax.config.presets import preset_layers
 from vsgjax.config.schema import DOTTED_FIELDS
 from vsgjax.registry.agents import agent_entry, dreamer_models, prototype_models
-from vsgjax.registry.tasks import CONTINUOUS, DISCRETE, VECTOR, family_of
+from vsgjax.registry.tasks import CONTINUOUS, DISCRETE, FAMILIES, IMAGE, VECTOR, family_of
 
 
 @pytest.mark.parametrize(
@@ -42,7 +43,7 @@ from vsgjax.registry.tasks import CONTINUOUS, DISCRETE, VECTOR, family_of
         (lambda: make_config(overrides=["model.deter=1.5"]), "'1.5'", ("int",)),
         (lambda: make_config(overrides=["wm.kl_masked=maybe"]), "'maybe'", ("bool",)),
         (lambda: make_config(task="mujoco_cheetah"), "'mujoco_cheetah'",
-         ("bbs_", "dmc_", "atari_")),
+         tuple(f"{prefix}_" for prefix in FAMILIES)),
     ],
 )
 def test_errors_name_the_bad_value_and_list_valid_ones(call, named, listed):
@@ -154,7 +155,7 @@ def test_sizes_shrink_the_networks():
     assert paper.wm.cnn_depth > small.wm.cnn_depth > debug.wm.cnn_depth
 
 
-@pytest.mark.parametrize("task", ["bbs_basic", "dmc_walker_walk", "atari_pong"])
+@pytest.mark.parametrize("task", example_tasks(IMAGE))
 def test_the_cpu_size_refuses_image_tasks_naming_size_task_and_what_is_valid(task):
     with pytest.raises(ConfigError) as error:
         make_config(task, "vsg", "cpu")
@@ -224,15 +225,15 @@ def test_a_section_the_agent_does_not_read_is_refused_naming_its_readers():
 
 
 def test_model_precision_sets_the_precision_of_every_agent():
-    for model in ("vsg", "drqv2"):
+    for model in one_model_per_agent():
         config = make_config("mjx_cartpole_swingup", model, "debug", ["model.precision=bfloat16"])
         assert config.precision == "bfloat16"
 
 
 def test_a_task_family_without_the_agents_presets_is_refused():
     """An agent's presets hold only the columns it trains on; make_config's
-    :func:`check_agent_fits` refuses the others first, and the presets' lookup names the
-    column should an entry claim a family its presets lack."""
+    :func:`vsgjax.config.presets.check_agent_fits` refuses the others first, and the presets'
+    lookup names the column should an entry claim a family its presets lack."""
     pretend = dataclasses.replace(agent_entry("drqv2"), actions=(CONTINUOUS, DISCRETE))
     with pytest.raises(ConfigError, match="'drqv2' .* no presets for the 'atari' column .* "
                                           "dmc, bbs"):

@@ -3,6 +3,7 @@
 import pytest
 
 import bbs
+from tests.support.registry_names import example_tasks
 from vsgjax.config import (
     MODELS,
     SIZES,
@@ -22,7 +23,7 @@ from vsgjax.config.checks import (
 from vsgjax.registry.agents import agent_entry
 from vsgjax.registry.tasks import VECTOR, family_of
 
-TASKS = ("bbs_basic", "dmc_walker_walk", "atari_pong", "mjx_cartpole_swingup")
+TASKS = example_tasks()  # bbs, dmc, atari (images), mjx, gymnax (vectors, on the device)
 
 
 def test_every_preset_is_valid():
@@ -41,8 +42,9 @@ def test_every_preset_is_valid():
                 if fits:
                     make_config(task, model, size)
                     resolved += 1
-    # Dreamer: 5 models x 4 tasks x 3 sizes + cpu; DrQ-v2; DreamerPro, VSGPro: 3 image tasks
-    assert resolved == 5 * 4 * 3 + 5 + 3 * 3 + 1 + 2 * 3 * 3
+    # the 5 Dreamer models with a decoder: 5 tasks x 3 sizes, and cpu on the 2 vector tasks;
+    # DrQ-v2: the 3 continuous tasks x 3 sizes and cpu on mjx; DreamerPro, VSGPro: 3 image tasks
+    assert resolved == 5 * 5 * 3 + 5 * 2 + 3 * 3 + 1 + 2 * 3 * 3
 
 
 def test_every_numeric_key_has_a_range():

@@ -5,12 +5,19 @@ files under vsgjax/, bbs/, experiments/ and tests/ (in Python only the comments,
 and the import statements: code that runs is checked by running it). Two kinds of name:
 
 * a path written as text: a token that starts with a top-level folder (``vsgjax/``, ``bbs/``,
-  ``experiments/``, ``tests/``, ``docs/``) and ends in a file extension or ``/``, such as
-  ``vsgjax/loop/driver.py`` or ``experiments/paper/``; it must exist from the repository root;
-* a dotted module name, ``vsgjax.x.y`` or ``experiments.x.y``: the longest prefix that is a
-  module or package must exist, and what follows it may be one attribute that the module
-  defines or imports at its top level (``vsgjax.agents.dreamer.api.train_step``; a class's
-  own attributes after it are not checked).
+  ``experiments/``, ``tests/``, ``docs/``, ``.ci/``), such as ``vsgjax/loop/driver.py``,
+  ``experiments/paper/`` or ``tests/loop/test_seeds`` (a module without its ``.py``); it must
+  exist from the repository root, and a test id after it (``tests/test_docs.py::test_x``)
+  must name a def or class of that file (a method of that class after a second ``::``);
+* a dotted module name, ``vsgjax.x.y``, ``experiments.x.y`` or ``bbs.x.y``: the longest
+  prefix that is a module or package must exist, and what follows it, or follows a ``:``
+  (``vsgjax.registry.agents:MODELS``, the registries' form), may be one attribute that the
+  module defines or imports at its top level (``vsgjax.agents.dreamer.api.train_step``; a
+  class's own attributes after it are not checked);
+* in Python, a Sphinx role with a name relative to its module (``:class:`MjxTask```,
+  ``:meth:`observe```, ``:mod:`memory_check```): its first part must be a module of the
+  same package, a name one of that package's modules defines or uses (a base class names
+  the methods its subclasses implement), or an installed package (``:func:`jax.jit```).
 
 Placeholders and generated names (a ``<``, ``{``, ``*``, ``$`` or ``...`` in the token, or a
 run directory: ``runs/``, ``logdir/``) are skipped; anything else that names a path that is not
@@ -20,6 +27,7 @@ in the tree on purpose is in ``ALLOWED`` below, with its reason.
 from __future__ import annotations
 
 import ast
+import importlib.util
 import io
 import re
 import tokenize
@@ -27,21 +35,22 @@ from functools import cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-TOP = ("vsgjax", "bbs", "experiments", "tests", "docs")
-MODULE_ROOTS = ("vsgjax", "experiments")
+TOP = ("vsgjax", "bbs", "experiments", "tests", "docs", r"\.ci")
+MODULE_ROOTS = ("vsgjax", "experiments", "bbs")
 
 TEXT_FILES = ["README.md", "BENCHMARKS.md", "pyproject.toml", "Makefile",
               *sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs").glob("*.md"))]
 PY_FILES = sorted(str(p.relative_to(ROOT)) for top in ("vsgjax", "bbs", "experiments", "tests")
                   for p in (ROOT / top).rglob("*.py") if "__pycache__" not in p.parts)
 
-# A path: a top-level folder, then path characters; it counts when it ends in an extension or
-# "/". Not preceded by a path character (so "../shared/docs/x.md" or "a/tests/b.py" is not one).
-PATH = re.compile(r"(?<![\w./~$-])((?:" + "|".join(TOP) + r")/[\w./-]*)")
-EXTENSION = re.compile(r"\.[A-Za-z][A-Za-z0-9]{0,7}$")
-# A dotted module name: vsgjax.x or experiments.x (not a file name's tail: "docs/experiments.md").
+# A path: a top-level folder, then path characters, then any test ids ("::name"). Not preceded
+# by a path character (so "../shared/docs/x.md" or "a/tests/b.py" is not one).
+PATH = re.compile(r"(?<![\w./~$-])((?:" + "|".join(TOP) + r")/[\w./-]*(?:::\w+)*)")
+# A dotted module name: vsgjax.x or experiments.x (not a file name's tail: "docs/experiments.md"),
+# with an attribute after a colon if one follows ("vsgjax.registry.agents:MODELS").
 DOTTED = re.compile(r"(?<![\w./-])((?:" + "|".join(MODULE_ROOTS)
-                    + r")(?:\.[A-Za-z_]\w*)+)")
+                    + r")(?:\.[A-Za-z_]\w*)+(?::[A-Za-z_]\w*)?)")
+ROLE = re.compile(r":(?:class|func|meth|attr|data|obj|exc|mod):`[~.]?([A-Za-z_]\w*)")
 PLACEHOLDER = ("<", "{", "*", "$", "...", "runs/", "logdir/")
 FILE_SUFFIXES = {"md", "py", "toml", "json", "jsonl", "txt", "png", "svg", "csv", "sh", "yaml",
                  "yml", "ipynb", "mcap", "npz", "pkl", "log", "html", "pdf", "gif", "mp4"}
@@ -61,7 +70,7 @@ SELF = str(Path(__file__).resolve().relative_to(ROOT))
 
 def _dotted_candidates(text: str):
     for match in DOTTED.finditer(text):
-        name = match.group(1)
+        name = match.group(1).replace(":", ".")
         if name.rsplit(".", 1)[-1] in FILE_SUFFIXES:  # "experiments.md": a file, not a module
             continue
         yield match.start(1), name
@@ -72,8 +81,6 @@ def _path_candidates(text: str):
         token = match.group(1).rstrip(".,;:")
         tail = text[match.end(1):match.end(1) + 1]
         if tail and tail in "<{*$":  # the token goes on as a placeholder: "runs/{seed}"
-            continue
-        if not (token.endswith("/") or EXTENSION.search(token)):
             continue
         yield match.start(1), token
 
@@ -139,6 +146,49 @@ def _module_file(parts: list[str]) -> Path | None:
     return None
 
 
+def path_exists(token: str) -> bool:
+    """Whether a path (or the module it names without ``.py``) exists, and its test ids."""
+    path, *test_ids = token.split("::")
+    file = ROOT / path
+    if not file.exists():
+        file = file.with_name(file.name + ".py")
+        if not file.is_file():
+            return False
+    scope = ast.parse(file.read_text()).body if test_ids else []
+    for name in test_ids:
+        node = next((n for n in scope if getattr(n, "name", None) == name), None)
+        if node is None:
+            return False
+        scope = node.body if isinstance(node, ast.ClassDef) else []
+    return True
+
+
+@cache
+def _every_name(module_file: Path) -> frozenset[str]:
+    """Every name a module defines, imports, assigns or reads, at any depth (``self.x`` too)."""
+    names = set()
+    for node in ast.walk(ast.parse(module_file.read_text())):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, ast.Name):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute):
+            names.add(node.attr)
+        elif isinstance(node, ast.alias):
+            names.add((node.asname or node.name).split(".")[0])
+    return frozenset(names)
+
+
+def role_exists(name: str, module_file: Path) -> bool:
+    """Whether a role's first name is of the module's package or an installed package."""
+    package = module_file.parent
+    if (package / f"{name}.py").exists() or (package / name / "__init__.py").exists():
+        return True
+    if any(name in _every_name(module) for module in package.glob("*.py")):
+        return True
+    return name in MODULE_ROOTS or importlib.util.find_spec(name) is not None
+
+
 def module_exists(name: str) -> bool:
     """Whether a dotted name is a module or package, or one's top-level attribute."""
     parts = name.split(".")
@@ -165,10 +215,17 @@ def missing_names() -> list[str]:
         else:
             names = [("path", t) for _, t in _path_candidates(text)]
             names += [("module", t) for _, t in _dotted_candidates(text)]
+            if rel.endswith(".py"):
+                names += [("role", m.group(1)) for m in ROLE.finditer(text)]
         for kind, name in names:
             if _skip(name) or name in ALLOWED:
                 continue
-            exists = (ROOT / name).exists() if kind == "path" else module_exists(name)
+            if kind == "path":
+                exists = path_exists(name)
+            elif kind == "role":
+                exists = role_exists(name, ROOT / rel)
+            else:
+                exists = module_exists(name)
             if not exists:
                 found.append(f"{rel}:{line}: {name}")
 
@@ -203,6 +260,25 @@ def test_the_scan_finds_paths_and_modules():
     assert not module_exists("vsgjax.model.api")
     assert not module_exists("vsgjax.config.presets.no_such_function")
     assert not (ROOT / "vsgjax/host.py").exists()
+
+
+def test_the_scan_checks_test_ids_attributes_after_a_colon_and_relative_roles():
+    text = ("tests/test_docs.py::test_readme_links_every_docs_page, tests/loop/test_seeds, "
+            "vsgjax.registry.agents:MODELS and tests/test_mjx_host_loop")
+    assert [t for _, t in _path_candidates(text)] == [
+        "tests/test_docs.py::test_readme_links_every_docs_page", "tests/loop/test_seeds",
+        "tests/test_mjx_host_loop"]
+    assert [t for _, t in _dotted_candidates(text)] == ["vsgjax.registry.agents.MODELS"]
+    assert path_exists("tests/test_docs.py::test_readme_links_every_docs_page")
+    assert path_exists("tests/loop/test_seeds")  # a test module, named without its .py
+    assert not path_exists("tests/test_mjx_host_loop")  # moved to tests/loop/
+    assert not path_exists("tests/test_docs.py::test_gone")
+    assert not module_exists("vsgjax.registry.agents.MODEL")
+    assert [m.group(1) for m in ROLE.finditer(":class:`~MjxTask`, :meth:`observe()`")] == [
+        "MjxTask", "observe"]
+    mjx = ROOT / "vsgjax/envs/mjx/__init__.py"
+    assert role_exists("MjxTask", mjx) and role_exists("vector_env", mjx)  # a name, a module
+    assert role_exists("jax", mjx) and not role_exists("MjxHostEnv", mjx)
 
 
 def test_every_allowed_name_is_still_named_and_still_missing():

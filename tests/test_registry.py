@@ -7,6 +7,10 @@ outside the registries themselves and the modules they point at (each agent's pr
 family's env module). Outside the check: ``experiments/bench/`` (a benchmark's choice of
 which model to time is data, as an experiment file's is) and ``experiments/reference_scores/``
 (its converters read other projects' file names).
+
+The tests may name the model or the task they are about, but not a list of several models or
+of several families' tasks: those they take from the registries, by property
+(``tests/support/registry_names.py``), so that no list of "all the models" goes stale.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from vsgjax.registry.agents import AGENTS, MODELS, agent_entry, dreamer_models, 
 from vsgjax.registry.tasks import FAMILIES, TaskError, family_of
 
 ROOT = Path(__file__).resolve().parents[1]
+SELF = Path(__file__).resolve().relative_to(ROOT).as_posix()
 CHECKED = ("vsgjax", "experiments")
 # besides the registries: the MJX task modules, and the scripts that pick the tasks they time
 # (benchmarks), draw (documentation figures) or convert (reference scores)
@@ -69,6 +74,55 @@ def test_no_model_or_family_name_outside_the_registries():
             found += [f"{relative}:{line}: {text!r}" for line, text in literals(path)
                       if forbidden(text)]
     assert not found, "names that belong in vsgjax/registry/:\n" + "\n".join(found)
+
+
+# lists of named models in tests that are deliberate choices, not "all" or "every ... model"
+CHOSEN_LISTS = {
+    # the paper's model and its baseline: the fast cases; the other models' are marked slow
+    ("tests/agents/dreamer/test_precision.py", ("vsg", "dreamerv2")),
+    # the same pair trained end to end on the device (each a slow test)
+    ("tests/loop/test_gymnax_device_loop.py", ("vsg", "dreamerv2")),
+}
+
+
+def name_lists(path: Path):
+    """(line, names) of each list, tuple or set literal in ``path`` holding two or more
+    model names, or task names or family prefixes of two or more families (``pytest.param``'s
+    first argument counts; a tuple unpacked into names is separate choices, not a list)."""
+    tree = ast.parse(path.read_text(), str(path))
+    unpacked = {id(node.value) for node in ast.walk(tree) if isinstance(node, ast.Assign)
+                and isinstance(node.targets[0], ast.Tuple)}
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.List | ast.Tuple | ast.Set) or id(node) in unpacked:
+            continue
+        items = [item.args[0] if isinstance(item, ast.Call) and item.args else item
+                 for item in node.elts]
+        texts = [item.value for item in items if isinstance(item, ast.Constant)
+                 and isinstance(item.value, str) and forbidden(item.value)]
+        models = tuple(dict.fromkeys(t for t in texts if t in MODELS))
+        families = {t.rstrip("_") if t.rstrip("_") in FAMILIES else family_of(t).prefix
+                    for t in texts if t not in MODELS}
+        if len(models) > 1 or len(families) > 1:
+            yield node.lineno, models or tuple(texts)
+
+
+def test_no_list_of_models_or_families_in_the_tests():
+    found = []
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        relative = path.relative_to(ROOT).as_posix()
+        if relative in (SELF, "tests/support/registry_names.py"):  # examples; the source
+            continue
+        found += [f"{relative}:{line}: {names}" for line, names in name_lists(path)
+                  if (relative, names) not in CHOSEN_LISTS]
+    assert not found, ("lists of names to take from the registries "
+                       "(tests/support/registry_names.py):\n" + "\n".join(found))
+
+
+def test_the_list_check_catches_a_list_of_models_and_one_of_families(tmp_path):
+    module = tmp_path / "test_bad.py"
+    module.write_text('MODELS = ("vsg", "svsg")\nTASKS = ["bbs_basic", pytest.param("mjx")]\n'
+                      'ONE = ["vsg"]\nTASK, OTHER = "dmc_walker_walk", "atari_pong"\n')
+    assert list(name_lists(module)) == [(1, ("vsg", "svsg")), (2, ("bbs_basic", "mjx"))]
 
 
 def test_the_check_catches_a_literal_model_name(tmp_path):

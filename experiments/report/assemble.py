@@ -16,6 +16,7 @@ from experiments.report.discovery import (
     discovery_text,
 )
 from experiments.report.grid import draw_grid, grid_data, grid_markdown
+from experiments.report.memory_len import draw_memory_len, memory_len_data, memory_len_markdown
 from experiments.report.open_loop import draw_open_loop, open_loop_data, open_loop_markdown
 from experiments.report.panels import draw_panels, panels_data, panels_markdown
 from experiments.report.reference import REFERENCE_DIR
@@ -110,6 +111,12 @@ def section(context: Context, kind: str, name: str, figure: dict, out: Path) -> 
         data = panels_data(context, figure.get("panels", ()), figure.get("at", ()),
                            figure.get("memory_rule", ()), figure.get("holding_gap"))
         return Section(kind, name, data, draw_panels(data, stem), panels_markdown(data))
+    if kind == "memory_len":
+        data = memory_len_data(context, figure.get("published"))
+        table = memory_len_markdown(data)
+        files = draw_memory_len(data, stem) + [stem.with_suffix(".md")]
+        files[-1].write_text(table + "\n")
+        return Section(kind, name, data, files, table)
     if kind == "rollouts":
         data = rollouts_data(context)
         return Section(kind, name, data, [], rollouts_markdown(data, out))

@@ -14,7 +14,7 @@ from experiments.report import REFERENCE_DIR, load_reference
 from experiments.report.reference import merge_references
 from experiments.spec import Run
 from vsgjax.envs.dmc import all_tasks
-from vsgjax.registry.agents import AGENTS
+from vsgjax.registry.agents import AGENTS, prototype_models
 
 NAME = "dreamerpro_dmc.json"
 PATH = REFERENCE_DIR / NAME
@@ -144,7 +144,7 @@ def test_the_natural_dmc_experiment_resolves_and_meets_the_authors_curves():
     for run in experiment.runs:
         config = make_config(run.task, run.model, run.size, run.config_overrides)
         assert config.env.background == "video"
-        assert config.wm.reward_scale == (1000.0 if run.model in ("dreamerpro", "vsgpro")
+        assert config.wm.reward_scale == (1000.0 if run.model in prototype_models()
                                           else 2.0)
     ours = {(run.task, run.method) for run in experiment.runs}
     theirs = {(r["task"], r["method"]) for r in RECORDS}

@@ -132,6 +132,9 @@ def test_an_agent_trains_evaluates_and_resumes_to_the_uninterrupted_run(model, t
     updates = max(line.get("train/updates", 0) for line in lines)
     assert updates == 2 + (160 - 32) // 16  # pretraining, then one update a training call
     assert all(np.isfinite(line["train/wm/loss"]) for line in lines if "train/wm/loss" in line)
+    gate_lines = [line for line in lines if "gates/open" in line]
+    assert bool(gate_lines) == (model == "vsg")  # with the task's gap and the cue-step gate
+    assert all({"gates/holding_3", "gates/prob_step1"} <= set(line) for line in gate_lines)
     episodes = sorted((tmp_path / "whole" / "episodes").iterdir())
     assert len(episodes) == 160 // 4  # one file per finished episode (4 env steps each)
     assert evaluate.main([str(tmp_path / "whole"), "--episodes", "4"]) == 0  # host evaluator

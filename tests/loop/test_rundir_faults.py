@@ -24,6 +24,7 @@ import bbs
 import vsgjax
 from experiments import launch, report
 from tests.support.overrides import replaced
+from tests.support.registry_names import example_tasks, one_model_per_agent
 from vsgjax import evaluate, train
 from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.config import ConfigError, config_changes, make_config, to_dict
@@ -36,6 +37,7 @@ from vsgjax.loop.host_trainer import first_update
 from vsgjax.loop.run_state import checkpoint_tree
 from vsgjax.loop.rundir import RunWriter
 from vsgjax.loop.rundir_guard import FOREIGN_DIR, LOCK_FILE, PREVIOUS_DIR, RunDirError
+from vsgjax.registry.agents import agent_entry
 from vsgjax.registry.tasks import family_of
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -562,12 +564,12 @@ def test_a_bad_value_is_one_line_naming_it_and_nothing_is_written(args, tmp_path
     assert not (tmp_path / "run").exists()
 
 
-@pytest.mark.parametrize("task", ["bbs_basic", "dmc_walker_walk", "atari_pong",
-                                  "mjx_cartpole_swingup", "gymnax_memory_len"])
-@pytest.mark.parametrize("model", ["vsg", "drqv2"])
+@pytest.mark.parametrize("task", example_tasks())
+@pytest.mark.parametrize("model", one_model_per_agent())
 def test_the_debug_size_trains_within_its_steps_on_every_family(task, model):
-    if task.startswith(("atari", "gymnax")) and model == "drqv2":
-        pytest.skip("DrQ-v2 acts in continuous action spaces only")
+    actions = family_of(task).actions
+    if actions not in agent_entry(model).actions:
+        pytest.skip(f"{model} does not act in {actions} action spaces")
     config = make_config(task, model, "debug")
     if family_of(task).on_device:
         first = DeviceProgram(config, make_device_task(config.env)).first_update()

@@ -1,5 +1,6 @@
-"""The agents: the interface they share (:mod:`~vsgjax.agents.interface`), one package each
-(``dreamer/``: DreamerV1, DreamerV2, VSG, SVSG, SSM; ``drqv2/``: DrQ-v2), and
+"""The agents: the interface they share (:mod:`~vsgjax.agents.interface`), one package per
+implementation (``dreamer/``: the Dreamer family; ``drqv2/``: DrQ-v2; which models each one
+implements is :mod:`vsgjax.registry.agents`' to say, ``dreamer_models()`` for the first), and
 :func:`make_agent`, which builds the agent a config names through the registry
 (:mod:`vsgjax.registry.agents`)."""
 

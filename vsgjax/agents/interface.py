@@ -25,8 +25,8 @@ prediction error at each of H imagined steps after observing the start of a batc
 ``[N, T]`` (jittable: the device loop computes it inside its compiled evaluation), which both
 loops log at every evaluation (``open_loop.jsonl``; the Dreamer family's is
 :func:`vsgjax.agents.dreamer.open_loop.open_loop_errors`); one whose latent states carry gates
-sets ``gated`` and offers ``gate_summary(state, batch) -> {name: float}``, which both loops log
-(:mod:`vsgjax.loop.gate_logging`). The loops look the optional hooks up with ``getattr``: an
+sets ``gated`` and offers ``gate_summary(state, batch, memory_gap=0) -> {name: float}``,
+which both loops log (:mod:`vsgjax.loop.gate_logging`). The loops look the optional hooks up with ``getattr``: an
 agent without a world model (DrQ-v2) offers none and writes none of these.
 """
 

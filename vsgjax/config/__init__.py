@@ -6,11 +6,10 @@ A config is built from three names and a list of overrides::
 
 * the *domain* (``bbs``, ``dmc``, ``atari``) comes from the task name's prefix and selects the
   column of the paper's hyperparameter table (docs/models.md);
-* the *model* (the agent: ``dreamerv1``, ``dreamerv2``, ``vsg``, ``svsg``, ``ssm``,
-  ``dreamerpro``, ``vsgpro``, ``drqv2``) selects the config's class: the fields every agent has
-  (``agent``, ``domain``, ``size``, ``precision``, ``env``, ``train``) and the sections the
-  agent's own settings module defines (``vsgjax/agents/<family>/settings.py``), and its
-  defaults;
+* the *model* (a name of :data:`vsgjax.registry.agents.MODELS`) selects the agent and the
+  config's class: the fields every agent has (``agent``, ``domain``, ``size``, ``precision``,
+  ``env``, ``train``) and the sections the agent's own settings module defines
+  (``vsgjax/agents/<family>/settings.py``), and its model-specific defaults;
 * the *size* (``paper``, ``small``, ``cpu``, ``debug``) scales the networks: ``paper`` is the
   table, ``small`` is CPU-friendly (smaller networks, and batch 8 x 32 every 2 agent steps so
   that a small CPU updates about once a second), ``cpu`` learns the ``mjx_`` tasks (vector

@@ -46,6 +46,10 @@ class DeviceTask(Protocol):
     steps per episode, the same for every episode. ``obs_keys`` and ``observation_spec()``
     (``{key: (shape, dtype)}``): vector observations, which ``flat_obs`` concatenates into the
     one ``vector`` the agent reads (leading batch axes kept).
+
+    A task that asks for memory may also name its gap, ``memory_gap``: the agent steps between
+    a cue and the step that asks for it (MemoryChain's L); the gated agents' logs then report
+    the units held closed that long (``gates/holding_<gap>``, beside the fixed gaps).
     """
 
     name: str

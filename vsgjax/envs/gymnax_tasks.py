@@ -87,6 +87,12 @@ class MemoryChainTask:
         """L + 1: every episode terminates at this agent step."""
         return self.memory_length + 1
 
+    @property
+    def memory_gap(self) -> int:
+        """L: the context is stored at agent step 1 (the gate of step 1 sees the reset
+        observation) and asked for at step L + 1."""
+        return self.memory_length
+
     def _params(self):
         env = _memory_chain()
         return env.default_params.replace(memory_length=self.memory_length)

@@ -224,8 +224,9 @@ class DeviceTrainer(LoopDriver):
         super().log()
         if logs_gates(self.program.agent) and self.schedule.training:
             for i, run in enumerate(self.runs):
-                summary = self.program.agent.gate_summary(take(self.state.agent, i),
-                                                          self.gate_batch(i))
+                summary = self.program.agent.gate_summary(
+                    take(self.state.agent, i), self.gate_batch(i),
+                    memory_gap=getattr(self.program.task, "memory_gap", 0))
                 run.logger.scalars(self.env_steps, summary)
 
     def gate_batch(self, index: int) -> dict:

@@ -11,7 +11,9 @@ batch per log, outside the update.
 A line holds every key of ``GateStatistics.summary()``, those that show holding included: the
 closed runs' mean, 90th percentile and max against the geometric null of the same open rate,
 GateL0RD's three rates, and ``gates/holding_<gap>`` for each gap of ``HOLDING_GAPS`` (5, 10,
-20, 50 steps) that fits ``train.length``. The gate objective's own loss and value are the
+20, 50 steps) that fits ``train.length`` and for the task's ``memory_gap`` if it names one
+(MemoryChain's L), and, where the batch shows episode starts, the gate probability at episode
+step 1 (MemoryChain's cue) against the other steps. The gate objective's own loss and value are the
 update's metrics (``train/wm/gate_*``), not these.
 """
 

@@ -19,12 +19,13 @@ from vsgjax.agents.dreamer import prototypes
 from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.agents.dreamer.open_loop import open_loop_errors, open_loop_video
 from vsgjax.config import ConfigError, make_config, to_dict
+from vsgjax.registry.agents import prototype_models
 
 BATCH, LENGTH, UPDATES, ACTIONS = 2, 4, 3, 2
 TASK = "dmc_walker_run"
 
 
-@pytest.mark.parametrize("model", ["dreamerpro", "vsgpro"])
+@pytest.mark.parametrize("model", prototype_models())
 def test_presets_are_the_authors_dmc_settings(model):
     """``defaults`` + ``dmc`` of the authors' configs.yaml (rssm, kl, dataset, optimisers,
     action repeat, prototypes; sinkhorn_eps 0.0125 in the dmc block)."""
@@ -47,7 +48,7 @@ def test_presets_are_the_authors_dmc_settings(model):
     assert make_config("bbs_basic", model, "paper").proto.sinkhorn_eps == 0.05
 
 
-@pytest.mark.parametrize("model", ["dreamerpro", "vsgpro"])
+@pytest.mark.parametrize("model", prototype_models())
 def test_a_vector_task_is_refused_naming_it(model):
     with pytest.raises(ConfigError, match="'mjx_walker_walk'.*image observations"):
         make_config("mjx_walker_walk", model, "cpu")
@@ -89,7 +90,7 @@ def _updates(model: str):
     return agent, batch, states, metrics
 
 
-@pytest.fixture(scope="module", params=["dreamerpro", "vsgpro"])
+@pytest.fixture(scope="module", params=prototype_models())
 def updates(request):
     return _updates(request.param)
 
@@ -213,7 +214,7 @@ def test_the_pages_presets_table_matches_make_config():
 def test_the_pages_table_names_every_key_that_differs_from_dreamerv2():
     base = to_dict(make_config(TASK, "dreamerv2", "paper"))
     named = set(page_table())
-    for model in ("dreamerpro", "vsgpro"):
+    for model in prototype_models():
         data = to_dict(make_config(TASK, model, "paper"))
         differing = {f"{section}.{key}" for section, values in data.items()
                      if isinstance(values, dict) for key, value in values.items()

@@ -1,4 +1,4 @@
-"""Latent dynamics (all five models) and latent distributions."""
+"""Latent dynamics (every Dreamer-family model) and latent distributions."""
 
 import dataclasses
 import functools

@@ -129,6 +129,9 @@ def test_the_gate_probability_at_the_cue_step_against_the_other_steps():
     at, other = stats.prob_at_step(1)
     assert float(at) == pytest.approx(0.9) and float(other) == pytest.approx(0.1)
     assert np.isnan(float(stats.prob_at_step(9)[0]))  # no episode reaches step 9
+    summary = stats.summary()
+    assert summary["gates/prob_step1"] == pytest.approx(0.9)
+    assert summary["gates/prob_other_steps"] == pytest.approx(0.1)
     with pytest.raises(ValueError, match="-1"):
         stats.prob_at_step(-1)
     with pytest.raises(ValueError, match="got 0"):
@@ -143,6 +146,9 @@ def test_the_summary_keeps_its_keys_and_adds_the_holding_ones():
     assert summary["gates/open"] == pytest.approx(50 / 80)
     assert summary["gates/null_run_mean"] == pytest.approx(40 / (1 + 39 * 50 / 80))
     assert summary["gates/steps_any_open"] == 1.0 and summary["gates/units_ever_open"] == 1.0
+    assert "gates/holding_30" not in summary
+    assert stats.summary(memory_gap=30)["gates/holding_30"] == 0.5  # the task's memory gap
+    assert "gates/holding_41" not in stats.summary(memory_gap=41)  # longer than the window
 
 
 def test_statistics_of_a_gatel0rd_model():

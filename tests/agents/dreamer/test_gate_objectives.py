@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import vsgjax
+from tests.support.registry_names import models
 from vsgjax import train
 from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.agents.dreamer.cells import (
@@ -204,7 +205,7 @@ def _check_update(objective: str, metrics: dict, prefix: str = "") -> None:
     assert not others & set(metrics), "one gate loss per objective"
 
 
-@pytest.mark.parametrize("model", ["vsg", "svsg"])
+@pytest.mark.parametrize("model", models(gated=True, prototypes=False))
 @pytest.mark.parametrize("objective", GATE_OBJECTIVES)
 def test_a_world_model_update_trains_the_gate_with_each_objective(model, objective):
     cfg = make_config("bbs_basic", model, "debug", [f"wm.gate_objective={objective}"])

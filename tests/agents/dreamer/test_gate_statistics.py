@@ -10,6 +10,7 @@ FAIL: that shows they measure the sparsity loss.
 from __future__ import annotations
 
 import os
+import re
 
 import jax
 import jax.numpy as jnp
@@ -17,6 +18,7 @@ import numpy as np
 import pytest
 
 import vsgjax
+from tests.support.registry_names import models
 from vsgjax.agents.dreamer import gates
 from vsgjax.agents.dreamer.gate_statistics import (
     GateStatistics,
@@ -25,6 +27,8 @@ from vsgjax.agents.dreamer.gate_statistics import (
 )
 from vsgjax.agents.dreamer.world_model import WorldModel
 from vsgjax.config import make_config
+from vsgjax.registry.agents import gated_models
+from vsgjax.registry.tasks import VECTOR
 
 BREAK_GATE_LOSS = os.environ.get("VSGJAX_BREAK_GATE_LOSS") == "1"
 OBS = {"vector": (8,)}  # the dynamics and gates are those of any task; a vector keeps it fast
@@ -111,7 +115,7 @@ def test_smaller_kappa_gives_a_smaller_open_fraction(trained):
 
 # --- gates, closed units, masked KL (one forward pass) --------------------------------------
 
-@pytest.fixture(scope="module", params=["vsg", "svsg"])
+@pytest.fixture(scope="module", params=models(gated=True, observes=VECTOR))
 def observed(request):
     """``(model, params, batch, stats, posts, priors)`` of a fresh debug world model."""
     cfg = config(request.param)
@@ -197,9 +201,10 @@ def test_closed_run_lengths_on_hand_made_gates():
 
 # --- bad input ------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("name", ["dreamerv1", "dreamerv2", "ssm"])
+@pytest.mark.parametrize("name", models(gated=False))
 def test_models_without_gates_are_refused_by_name(name):
-    with pytest.raises(ValueError, match=f"model '{name}' has no gates.*vsg, svsg"):
+    gated = re.escape(", ".join(gated_models()))
+    with pytest.raises(ValueError, match=f"model '{name}' has no gates.*{gated}"):
         gate_statistics({}, fixed_batch(), config=make_config("bbs_basic", name, "debug"))
 
 

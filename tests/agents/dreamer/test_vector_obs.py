@@ -5,11 +5,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from tests.support.registry_names import models
 from vsgjax.agents.dreamer import api
 from vsgjax.agents.dreamer.agent import DreamerAgent
 from vsgjax.agents.dreamer.world_model import WorldModel, obs_spec_of
 from vsgjax.config import ConfigError, make_config
 from vsgjax.observations import ObsSpec, obs_spec
+from vsgjax.registry.tasks import VECTOR as VECTOR_KIND
 
 TASK = "dmc_walker_walk"
 VECTOR = {"vector": (24,)}
@@ -110,7 +112,7 @@ def test_params_name_their_spec_and_an_image_shape_is_the_image_spec():
 
 # --- training and acting ---------------------------------------------------------------------
 
-@pytest.mark.parametrize("model", ["vsg", "svsg"])
+@pytest.mark.parametrize("model", models(gated=True, observes=VECTOR_KIND))
 def test_agent_trains_on_vector_observations(model):
     agent = DreamerAgent(config(model), VECTOR, 6, False)
     state = agent.init(jax.random.PRNGKey(0))

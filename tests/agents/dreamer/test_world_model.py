@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from tests.support.registry_names import models
 from vsgjax.agents.dreamer.distributions import Categorical, Gaussian
 from vsgjax.agents.dreamer.dynamics import RSSMState, SVSGState, make_dynamics
 from vsgjax.agents.dreamer.networks import (
@@ -261,7 +262,7 @@ def test_loss_finite_for_every_model_at_debug_size(name):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("size", ["small", "paper"])
-@pytest.mark.parametrize("name", ["vsg", "svsg"])
+@pytest.mark.parametrize("name", models(gated=True, prototypes=False))
 def test_loss_finite_at_larger_sizes(name, size):
     model = WorldModel(make_config("bbs_basic", name, size))
     params = jax.jit(model.init)(jax.random.PRNGKey(0))

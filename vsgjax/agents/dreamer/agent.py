@@ -1,5 +1,6 @@
-"""The Dreamer-family agent (DreamerV1, DreamerV2, VSG, SVSG, SSM): one jitted update of world
-model, actor and critic, and jitted acting; it implements :mod:`vsgjax.agents.interface`.
+"""The Dreamer-family agent (every model of :func:`vsgjax.registry.agents.dreamer_models`): one
+jitted update of world model, actor and critic, and jitted acting; it implements
+:mod:`vsgjax.agents.interface`.
 
     agent = DreamerAgent(config, obs_shape=(64, 64, 3), action_dim=2, discrete=False)
     # or obs_shape={"vector": (24,)} (an ObsSpec or {key: shape}; see vsgjax.observations)
@@ -193,9 +194,12 @@ class DreamerAgent:
         """Whether the latent states carry update gates (VSG, SVSG)."""
         return self.world_model.dynamics.gated
 
-    def gate_summary(self, state: AgentState, batch: dict) -> dict[str, float]:
-        """The ``gates/*`` scalars of the state's world model on a ``[B, T]`` batch."""
-        return gate_statistics(state.params["wm"], batch, config=self.config).summary()
+    def gate_summary(self, state: AgentState, batch: dict, memory_gap: int = 0
+                     ) -> dict[str, float]:
+        """The ``gates/*`` scalars of the state's world model on a ``[B, T]`` batch (with
+        ``gates/holding_<memory_gap>`` for a task that names its memory gap)."""
+        stats = gate_statistics(state.params["wm"], batch, config=self.config)
+        return stats.summary(memory_gap=memory_gap)
 
     def open_loop_video(self, state: AgentState, episode: dict, key: jax.Array):
         """The run's open-loop prediction video of an episode (uint8 frames), or None for an

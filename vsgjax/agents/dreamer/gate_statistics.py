@@ -150,15 +150,20 @@ class GateStatistics:
         return {**{f"closed_run_{k}": v for k, v in observed.items()},
                 **{f"null_run_{k}": v for k, v in null.items()}}
 
-    def summary(self, gaps: Sequence[int] | None = None) -> dict[str, float]:
+    def summary(self, gaps: Sequence[int] | None = None, memory_gap: int = 0
+                ) -> dict[str, float]:
         """Scalars for logging, under ``gates/*`` keys (host floats); ``gates/holding_<gap>``
         and the same for independent gates, ``gates/null_holding_<gap>`` (:func:`null_holding`),
         for each gap of ``gaps`` (default: those of :data:`HOLDING_GAPS` the window can
-        show)."""
+        show, and a task's ``memory_gap`` if it fits); where the batch shows episode starts, the mean posterior gate probability at
+        episode step 1 (the gate that can store what the first observation shows: MemoryChain's
+        cue) and at the other steps, ``gates/prob_step1`` and ``gates/prob_other_steps``."""
         lengths = jnp.arange(1, self.closed_runs.shape[0] + 1)
         runs = self.closed_runs.sum()
         window = self.gate.shape[1]
-        gaps = [g for g in HOLDING_GAPS if g <= window] if gaps is None else gaps
+        gaps = [g for g in HOLDING_GAPS if g <= window] if gaps is None else list(gaps)
+        if 0 < memory_gap <= window and memory_gap not in gaps:
+            gaps.append(memory_gap)
         out = {
             "gates/open": self.gate.mean(),
             "gates/open_prior": self.prior_gate.mean(),
@@ -181,6 +186,9 @@ class GateStatistics:
                     "gates/units_ever_open": rates["units_ever_open"]})
         out.update({f"gates/{key}": value for key, value in self.closed_run_quantiles().items()
                     if key != "closed_run_mean"})
+        cue, other = self.prob_at_step(1)
+        if jnp.isfinite(cue) and jnp.isfinite(other):  # the batch holds episode starts
+            out.update({"gates/prob_step1": cue, "gates/prob_other_steps": other})
         open_rate = float(self.gate.mean())
         for gap in gaps:
             out[f"gates/holding_{gap}"] = self.holding(gap)

@@ -1,6 +1,6 @@
-"""The Dreamer family's presets (DreamerV1, DreamerV2, VSG, SVSG, SSM): the paper's
-hyperparameter table per preset column (``COLUMN``) and the sizes (``SIZE``), as dotted config
-keys. Pure data; what differs between the family's models is in their registry entries
+"""The Dreamer family's presets (every model of :func:`vsgjax.registry.agents.dreamer_models`):
+the paper's hyperparameter table per preset column (``COLUMN``) and the sizes (``SIZE``), as
+dotted config keys. Pure data; what differs between the family's models is in their registry entries
 (:mod:`vsgjax.registry.agents`); :func:`vsgjax.config.make_config` applies both.
 """
 

@@ -17,9 +17,9 @@ Changes to the suite's models (all in ``core.load_model`` or a domain's ``edit``
   ``state.info``) or are made once when they are the same every episode (reacher's target
   size, finger spin's hinge damping).
 
-``host.MjxVectorEnv`` presents N envs as one gymnasium vector env, for the host training loop
-(``train.loop=host``); the device loop (``vsgjax/loop/device_program.py``) steps them inside its own
-jitted program.
+:class:`vsgjax.envs.mjx.vector_env.MjxVectorEnv` presents N envs as one gymnasium vector env,
+for the host training loop (``train.loop=host``); the device loop
+(``vsgjax/loop/device_program.py``) steps them inside its own jitted program.
 
 See ``docs/mjx.md`` for the tasks, the measured agreement with dm_control and the API.
 """

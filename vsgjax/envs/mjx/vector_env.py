@@ -23,7 +23,8 @@ drives MJX tasks as it drives gymnasium envs. Each ``step`` call is one jitted `
   :func:`vsgjax.envs.make_envs` (what ``make_env_batch`` builds) starts env i from
   ``jax.random.PRNGKey(seed + i)`` (``+ EVAL_SEED_OFFSET`` for eval envs, the seed ranges of
   the gymnasium tasks); the device loop resets its N envs from ``split(reset_key, N)``, and
-  an ``MjxVectorEnv`` built with those keys replays its episodes (``tests/test_mjx_host_loop``).
+  an ``MjxVectorEnv`` built with those keys replays its episodes
+  (``tests/loop/test_mjx_host_loop.py``).
   ``reset(seed=s)`` restarts env i from ``PRNGKey(s + i)`` (or ``PRNGKey(s[i])`` for a list);
   ``reset()`` without a seed starts the next episodes of the envs' key streams.
 """

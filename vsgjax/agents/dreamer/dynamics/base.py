@@ -1,4 +1,6 @@
-"""The latent-dynamics interface shared by all five models, and their state pytrees.
+"""The latent-dynamics interface shared by RSSM, SSM and SVSG, and their state pytrees (which
+model takes which dynamics: its registry entry's ``dynamics`` option,
+:mod:`vsgjax.registry.agents`).
 
 Every function is PER EXAMPLE (no batch axis); batch with ``jax.vmap`` and per-example keys.
 A model is a frozen (hashable, jit-static) dataclass holding its :class:`ModelConfig`, its

@@ -1,0 +1,67 @@
+"""The report's ``memory_len`` figure and tables from hand-written run files
+(experiments/report/memory_len.py): bsuite's regret ratio and score computed by bsuite's own
+analysis code from the training episodes, success from the last evaluation, the gates' table,
+missing runs."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from experiments import report
+from experiments.report import Context
+from experiments.report.memory_len import memory_len_data
+from experiments.spec import load_experiment
+
+
+def runs_by(experiment, method, seed):
+    return next(r for r in experiment.runs if r.method == method and r.seed == seed)
+
+
+def write_run(run, root, returns, last_eval, gates=None):
+    logdir = run.logdir(root)
+    logdir.mkdir(parents=True, exist_ok=True)
+    lines = [{"step": 10 * i, "episode/return": r, "episode/length": 11}
+             for i, r in enumerate(returns)]
+    if gates:
+        lines.append({"step": 10 * len(returns), **{f"gates/{k}": v for k, v in gates.items()}})
+    (logdir / "metrics.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
+    score = {"task": run.task, "method": run.method, "seed": str(run.seed),
+             "xs": [100.0, 200.0], "ys": [0.0, last_eval], "wall_s": [30.0, 120.0]}
+    (logdir / "scores.jsonl").write_text(json.dumps(score) + "\n")
+
+
+def test_bsuite_scores_success_gates_and_missing_runs(tmp_path):
+    experiment = load_experiment("memory_len", seeds=2)
+    ep = lambda perfect, total=100: [1.0] * perfect + [-1.0] * (total - perfect)
+    write_run(runs_by(experiment, "DreamerV2-L10", 0), tmp_path, ep(80), 0.9)  # ratio 0.4
+    write_run(runs_by(experiment, "DreamerV2-L20", 0), tmp_path, ep(50), 0.0)  # ratio 1.0
+    write_run(runs_by(experiment, "DreamerV2-L30", 0), tmp_path, ep(0), -1.0)  # ratio 2.0
+    write_run(runs_by(experiment, "DreamerV2-L10", 1), tmp_path, ep(100), 1.0)
+    gates = {"open": 0.4, "closed_run_p90": 3.0, "null_run_p90": 4.0, "closed_run_max": 9.0,
+             "null_run_max": 8.0, "holding_10": 0.25, "null_holding_10": 0.006,
+             "prob_step1": 0.9, "prob_other_steps": 0.1}
+    write_run(runs_by(experiment, "VSG-gatel0rd-L10", 0), tmp_path, ep(60), 0.5, gates)
+
+    data = memory_len_data(Context.create(experiment, tmp_path),
+                           "bsuite_memory_len_published.json")
+    assert data.series == ["DreamerV2", "VSG", "VSG-gatel0rd"] and data.lengths == [10, 20, 30]
+    first = data.of("DreamerV2", 10)
+    assert [r.regret_ratio for r in first] == pytest.approx([0.4, 0.0])
+    assert [r.success for r in first] == pytest.approx([0.95, 1.0])
+    assert [r.learned for r in first] == [True, True]
+    assert not data.of("DreamerV2", 20)[0].learned
+    assert data.scores == {"DreamerV2": [pytest.approx(1 / 3)]}  # seed 1 lacks L20, L30
+    assert len(data.missing) == 2 * 9 - 5
+    assert set(data.published) == {"DreamerV3", "R2I"}
+
+    built = report.build_report(experiment, tmp_path, tmp_path / "out")
+    section = next(s for s in built.sections if s.kind == "memory_len")
+    assert [p.name for p in section.files] == ["memory_len.png", "memory_len.pdf",
+                                               "memory_len.md"]
+    assert "| 10 | 0.97 ± 0.03 (2); learned 2/2 |" in section.markdown
+    assert "| DreamerV2 | 0.33 | 0.33 |" in section.markdown
+    assert "| VSG-gatel0rd | 10 | 0.40 | 3.0 (4.0) | 9 (8) | 0.250 (0.006) | 0.90 / 0.10 |" \
+        in section.markdown
+    assert "a reduced budget" in section.markdown
