@@ -54,7 +54,7 @@ def unexplained_fractions(run, episodes: int, seed: int = 0) -> dict[str, np.nda
     model, params = run.world_model, run.params.wm
     if model.has_image or not model.vector_keys or not model.representation.decodes:
         raise ValueError(f"run {run.logdir} observes {model.obs_shape.shapes} with model "
-                         f"{run.config.model.name!r}: reset_state needs vector observations "
+                         f"{run.config.agent!r}: reset_state needs vector observations "
                          "only and a model with a decoder")
     stored = run.episodes(episodes)
     if not stored:

@@ -154,7 +154,7 @@ def rollout_data(run: TrainedRun, episode: dict, *, context: int = CONTEXT, hori
     errors = jax.device_get(open_loop_errors(run.config, run.params.wm, repeated, key, context,
                                              horizon))
     return RolloutData(frames, gates, fraction, rewards, context, horizon, episode_index,
-                       run.step, run.config.model.name, np.asarray(errors["obs_mse"]),
+                       run.step, run.config.agent, np.asarray(errors["obs_mse"]),
                        np.asarray(errors["reward_mse"]))
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.doc_tables import cell_value, config_value, table_rows
-from tests.support.registry_names import example_tasks
+from tests.support.registry_names import example_tasks, one_model_per_agent
 from vsgjax.config import (
     MODELS,
     SIZES,
@@ -19,8 +19,10 @@ from vsgjax.config import (
     make_config,
     to_dict,
 )
+from vsgjax.config.presets import preset_layers
+from vsgjax.config.schema import DOTTED_FIELDS
 from vsgjax.registry.agents import agent_entry, dreamer_models, prototype_models
-from vsgjax.registry.tasks import FAMILIES, IMAGE, VECTOR
+from vsgjax.registry.tasks import CONTINUOUS, DISCRETE, FAMILIES, IMAGE, VECTOR, family_of
 
 
 @pytest.mark.parametrize(
@@ -142,7 +144,7 @@ def test_every_preset_resolves_and_round_trips(model, size):
             make_config("mjx_walker_walk", model, size)  # the cpu size is for vector tasks only
         return
     config = make_config("mjx_walker_walk" if size == "cpu" else "bbs_basic", model, size)
-    assert config.model.name == model and config.size == size
+    assert config.agent == model and config.size == size
     assert from_dict(to_dict(config)) == config
     hash(config)
 
@@ -175,13 +177,76 @@ def test_from_dict_rejects_unknown_keys():
         from_dict(data)
 
 
+# --- the saved form and its versions (vsgjax/config/saved.py) --------------------------------
+
+OLD_DRQV2 = (Path(__file__).resolve().parent / "fixtures" / "rundir_v1"
+             / "mjx_cartpole_swingup-drqv2-debug" / "config.json")
+
+
+def test_a_saved_config_holds_only_what_its_agent_reads():
+    drqv2 = to_dict(make_config("mjx_cartpole_swingup", "drqv2", "debug"))
+    assert set(drqv2) == {"version", "agent", "domain", "size", "precision", "drq", "env",
+                          "train"}
+    assert drqv2["version"] == 2 and drqv2["agent"] == "drqv2"
+    vsg = to_dict(make_config("mjx_cartpole_swingup", "vsg", "debug"))
+    assert {k for k, v in vsg.items() if isinstance(v, dict)} == {
+        "model", "wm", "ac", "optim", "env", "train"}
+    assert "name" not in vsg["model"] and "precision" not in vsg["model"]
+
+
+def test_a_version_1_config_migrates_to_what_its_agent_reads():
+    """Version 1 held every agent's sections and the agent's name in ``model.name``."""
+    old = json.loads(OLD_DRQV2.read_text())
+    assert "version" not in old and old["model"]["name"] == "drqv2" and "wm" in old
+    config = from_dict(old)
+    assert config.agent == "drqv2" and not hasattr(config, "model")
+    assert config.drq.hidden == old["drq"]["hidden"] and config.env.time_limit == 40
+    assert config_changes(old, to_dict(config)) == []
+    assert from_dict(to_dict(config)) == config
+
+
+def test_a_saved_config_of_an_unknown_version_names_it():
+    data = {**to_dict(make_config()), "version": 7}
+    with pytest.raises(ConfigError, match="format version 7 cannot be migrated"):
+        from_dict(data)
+    old = json.loads(OLD_DRQV2.read_text())
+    del old["model"]["name"]
+    with pytest.raises(ConfigError, match="version 1 without model.name cannot be migrated"):
+        from_dict(old)
+
+
+def test_a_section_the_agent_does_not_read_is_refused_naming_its_readers():
+    with pytest.raises(ConfigError, match="'wm.lr' is not read by model 'drqv2' .*read by "
+                                          "dreamerv1, dreamerv2, vsg"):
+        make_config("mjx_cartpole_swingup", "drqv2", "debug", ["wm.lr=0.1"])
+    data = {**to_dict(make_config("mjx_cartpole_swingup", "drqv2", "debug")), "wm": {"lr": 0.1}}
+    with pytest.raises(ConfigError, match="'wm'.*not read by model 'drqv2'"):
+        from_dict(data)
+
+
+def test_model_precision_sets_the_precision_of_every_agent():
+    for model in one_model_per_agent():
+        config = make_config("mjx_cartpole_swingup", model, "debug", ["model.precision=bfloat16"])
+        assert config.precision == "bfloat16"
+
+
+def test_a_task_family_without_the_agents_presets_is_refused():
+    """An agent's presets hold only the columns it trains on; make_config's
+    :func:`vsgjax.config.presets.check_agent_fits` refuses the others first, and the presets'
+    lookup names the column should an entry claim a family its presets lack."""
+    pretend = dataclasses.replace(agent_entry("drqv2"), actions=(CONTINUOUS, DISCRETE))
+    with pytest.raises(ConfigError, match="'drqv2' .* no presets for the 'atari' column .* "
+                                          "dmc, bbs"):
+        preset_layers(pretend, family_of("atari_pong"), "atari_pong", "debug")
+
+
 # --- the presets page's tables (docs/presets.md) ----------------------------------------------
 
 PRESETS_PAGE = Path(__file__).resolve().parents[1] / "docs" / "presets.md"
 TABLE_HEADER = "| key | BBS | DMC | Atari | source |"
 CPU_HEADING = "## The `cpu` size (vector observations, `mjx_*` tasks)"
 DOMAIN_TASKS = {"BBS": "bbs_basic", "DMC": "dmc_walker_walk", "Atari": "atari_pong"}
-IDENTITY_KEYS = {"model.name", "env.task", "train.seed"}  # the run's name, not a preset
+IDENTITY_KEYS = {"env.task", "train.seed"}  # the run's name, not a preset
 # the page's tables are the Dreamer family's; DreamerPro's and VSGPro's is docs/dreamerpro.md's
 DREAMER_MODELS = tuple(m for m in dreamer_models() if m not in prototype_models())
 
@@ -217,29 +282,23 @@ def test_presets_page_table_matches_make_config_cell_by_cell():
 
 
 def test_presets_page_table_lists_every_config_key_the_dreamer_family_reads():
-    from vsgjax.registry.agents import AGENTS, SHARED_SECTIONS
+    from vsgjax.registry.agents import AGENTS
 
     sections = {AGENTS[model].sections for model in DREAMER_MODELS}
     assert len(sections) == 1, f"the Dreamer models read different sections: {sections}"
-    dreamer = {*AGENTS["vsg"].sections, *SHARED_SECTIONS}
     data = to_dict(make_config())
-    all_sections = {section for section, values in data.items() if isinstance(values, dict)}
-    # A section the family does not read must be another agent's (DrQ-v2's ``drq``), so that a
-    # new section of the Dreamer family cannot drop out of the table unseen.
-    others = {section for name, entry in AGENTS.items() if name not in DREAMER_MODELS
-              for section in entry.sections}
-    assert all_sections - dreamer <= others, sorted(all_sections - dreamer - others)
-    keys = {f"{section}.{name}" for section in dreamer for name in data[section]}
-    assert keys - IDENTITY_KEYS == set(page_presets())
+    keys = {f"{section}.{name}" for section, values in data.items() if isinstance(values, dict)
+            for name in values}
+    assert (keys | set(DOTTED_FIELDS)) - IDENTITY_KEYS == set(page_presets())
 
 
 def test_a_saved_config_that_predates_a_key_counts_it_as_its_default():
     current = to_dict(make_config("bbs_basic", "vsg", "small"))
     saved = json.loads(json.dumps(current))
-    del saved["wm"]["encoder"], saved["model"]["precision"]
+    del saved["wm"]["encoder"]
     assert config_changes(saved, current) == []
     changed = to_dict(make_config("bbs_basic", "vsg", "small", ["model.precision=bfloat16"]))
-    assert config_changes(saved, changed) == ["model.precision: 'float32' -> 'bfloat16'"]
+    assert config_changes(saved, changed) == ["precision: 'float32' -> 'bfloat16'"]
 
 
 def test_presets_page_cpu_table_names_every_key_the_cpu_size_sets():

@@ -4,7 +4,15 @@ import pytest
 
 import bbs
 from tests.support.registry_names import example_tasks
-from vsgjax.config import MODELS, SIZES, VECTOR_SIZES, Config, ConfigError, make_config
+from vsgjax.config import (
+    MODELS,
+    SIZES,
+    VECTOR_SIZES,
+    ConfigError,
+    default_config,
+    make_config,
+    settings_of,
+)
 from vsgjax.config.checks import (
     CHECKED_AT_START,
     RANGES,
@@ -40,8 +48,16 @@ def test_every_preset_is_valid():
 
 
 def test_every_numeric_key_has_a_range():
-    keys = set(numeric_values(Config()))
-    assert keys == set(RANGES) | set(CHECKED_AT_START)
+    """Each agent's numeric keys have ranges (the shared ones' or its settings module's), and
+    every range is of a key some agent has."""
+    every_key, every_range = set(), set(RANGES)
+    for model in MODELS:
+        keys = set(numeric_values(default_config(model))) - set(CHECKED_AT_START)
+        ranges = set(RANGES) | set(settings_of(model).RANGES)
+        assert keys <= ranges, (model, sorted(keys - ranges))
+        every_key |= keys
+        every_range |= set(settings_of(model).RANGES)
+    assert every_key == every_range
 
 
 BAD_VALUES = {

@@ -133,11 +133,13 @@ def test_the_check_catches_a_literal_model_name(tmp_path):
 
 
 def test_every_entry_resolves_and_names_real_code():
+    from vsgjax.config import settings_of
     from vsgjax.registry import resolve
 
     for entry in AGENTS.values():
         assert callable(resolve(entry.implementation)), entry.name
         assert (ROOT / _module_path(entry.presets)).exists(), entry.presets
+        assert set(entry.sections) <= set(settings_of(entry.name).SECTIONS), entry.settings
     for family in FAMILIES.values():
         assert callable(resolve(family.parse)) and callable(resolve(family.build))
     assert set(gated_models()) < set(dreamer_models()) < set(MODELS)

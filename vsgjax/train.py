@@ -200,9 +200,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     enable_compilation_cache()
     config = configs[0]
-    print(f"vsgjax train: task={config.env.task} model={config.model.name} size={config.size} "
+    print(f"vsgjax train: task={config.env.task} model={config.agent} size={config.size} "
           f"({notes['size']}) {'seeds' if len(seeds) > 1 else 'seed'}={group_label(seeds)} "
-          f"steps={config.train.steps} precision={config.model.precision} "
+          f"steps={config.train.steps} precision={config.precision} "
           f"({notes['precision']}) loop={loop}", flush=True)
     print(f"device: {device_line()}\n{allocator_line()}\nlogdir: "
           + ", ".join(map(str, logdirs)), flush=True)

@@ -44,7 +44,7 @@ def _timed(fn, *args) -> tuple[float, float, float]:
 
 def _bench_model(name: str, size: str) -> list[str]:
     config = make_config("bbs_basic", name, size)
-    dyn = make_dynamics(config.model)
+    dyn = make_dynamics(config.model, name, config.precision)
     embed = embed_dim(config.wm.cnn_depth)
     keys = jax.random.split(jax.random.PRNGKey(0), 4)
     params = dyn.init(keys[0], embed, ACTIONS)

@@ -80,7 +80,7 @@ def test_a_run_of_another_model_in_a_slot_is_left_out_by_status_and_report(slots
     vsg, dreamerv2 = slots["jobs"]["vsg"], slots["jobs"]["dreamerv2"]
     write_run(dreamerv2.job_dir, vsg.run.config(), vsg.run.method)  # a VSG run in the slot
     status = launch.job_status(dreamerv2)
-    assert status.state == "config differs" and "model.name: 'vsg' -> 'dreamerv2'" in status.note
+    assert status.state == "config differs" and "agent: 'vsg' -> 'dreamerv2'" in status.note
     assert launch.job_status(vsg).state == "done"
     built = report.build_report(slots["experiment"], slots["root"], slots["root"] / "out")
     assert built.missing == [dreamerv2.run]

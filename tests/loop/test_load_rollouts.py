@@ -93,7 +93,7 @@ def test_trained_params_are_a_pytree_with_the_config_as_static_data():
 
 @pytest.mark.slow
 def test_load_returns_config_params_and_episodes(run, logdir):
-    assert run.config.model.name == "vsg" and run.config.size == "debug"
+    assert run.config.agent == "vsg" and run.config.size == "debug"
     assert run.step == 600 and run.checkpoint.parent == logdir / "checkpoints"
     assert set(run.params.wm) >= {"encoder", "dynamics", "decoder", "reward"}
     assert run.params.actor is not None and run.params.critic is not None

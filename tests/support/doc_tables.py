@@ -3,6 +3,8 @@ hold them against ``make_config``: a markdown table's rows, a cell's value, a do
 
 from __future__ import annotations
 
+from vsgjax.config.schema import DOTTED_FIELDS
+
 
 def table_rows(text: str, header: str, after: str | None = None) -> list[list[str]]:
     """The stripped cells of each row of the markdown table whose header line is the first line
@@ -33,6 +35,9 @@ def cell_value(text: str):
 
 
 def config_value(config, key: str):
-    """``config``'s value of a dotted key ``section.name``."""
+    """``config``'s value of a dotted key ``section.name`` (or of the top-level field the
+    command line sets under it, ``model.precision``)."""
+    if key in DOTTED_FIELDS:
+        return getattr(config, DOTTED_FIELDS[key])
     section, name = key.split(".")
     return getattr(getattr(config, section), name)

@@ -12,7 +12,7 @@ from vsgjax.registry.agents import agent_entry
 
 
 def make_agent(config: Config, spec):
-    """The agent of ``config.model.name`` for an env ``spec`` (``.obs``, ``.action_dim``,
+    """The agent of ``config.agent`` for an env ``spec`` (``.obs``, ``.action_dim``,
     ``.discrete``); the only place an agent is constructed outside its own package."""
-    agent_class = resolve(agent_entry(config.model.name).implementation)
+    agent_class = resolve(agent_entry(config.agent).implementation)
     return agent_class(config, spec.obs, spec.action_dim, spec.discrete)

@@ -55,7 +55,7 @@ class TrainedRun:
 
     def __repr__(self) -> str:
         return (f"TrainedRun({str(self.logdir)!r}: task={self.config.env.task} "
-                f"model={self.config.model.name} size={self.config.size} "
+                f"model={self.config.agent} size={self.config.size} "
                 f"checkpoint at env step {self.step}, {len(self.episode_paths())} episodes)")
 
     # --- the model's functions -------------------------------------------------------------
@@ -68,7 +68,7 @@ class TrainedRun:
     def world_model(self) -> WorldModel:
         """Encoder, dynamics, decoder and heads (``encode``, ``decode``, ``reward_mean`` ...)."""
         if not hasattr(self.agent, "world_model"):
-            raise ValueError(f"run {self.logdir} trained model {self.config.model.name!r}, which "
+            raise ValueError(f"run {self.logdir} trained model {self.config.agent!r}, which "
                              "has no world model; the models with one: "
                              + ", ".join(dreamer_models()))
         return self.agent.world_model
@@ -237,7 +237,7 @@ def load(logdir: str | Path) -> TrainedRun:
         raise FileNotFoundError(f"no readable checkpoint in {ckpt_dir}")
     state = restored.tree["agent"]
     params = AgentParams(state.params, config)
-    if config.model.name in dreamer_models():
+    if config.agent in dreamer_models():
         params = TrainedParams(state.params["wm"], state.params.get("actor"),
                                state.params.get("critic"), config, spec.action_dim, spec.discrete)
     run = TrainedRun(logdir, config, params, spec, restored.step, restored.path)

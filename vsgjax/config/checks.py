@@ -13,9 +13,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from vsgjax.config.schema import Config, ConfigError, EnvConfig, ModelConfig
+from vsgjax.config.schema import Config, ConfigError, EnvConfig, settings_of
 from vsgjax.registry import resolve
-from vsgjax.registry.agents import gated_models
 from vsgjax.registry.tasks import FAMILIES, family_of
 
 # Seeds up to 2**30 leave room below 2**31 for the evaluation envs' offset and the env index.
@@ -54,30 +53,8 @@ def _number(value: float) -> str:
 AT_LEAST_0, AT_LEAST_1, POSITIVE = Range(0), Range(1), Range(0, open_low=True)
 UNIT, OPEN_UNIT = Range(0, 1), Range(0, 1, open_low=True, open_high=True)
 
+# The ranges of the keys every agent has; an agent's settings module holds its own.
 RANGES = {
-    "model.deter": AT_LEAST_0, "model.hidden": AT_LEAST_1, "model.stoch": AT_LEAST_1,
-    "model.classes": AT_LEAST_0, "model.min_std": AT_LEAST_0, "model.gate_bias": Range(),
-    "wm.cnn_depth": AT_LEAST_1, "wm.mlp_layers": AT_LEAST_0, "wm.mlp_units": AT_LEAST_1,
-    "wm.reward_layers": AT_LEAST_0, "wm.discount_layers": AT_LEAST_0,
-    "wm.kl_scale": AT_LEAST_0, "wm.kl_balance": UNIT, "wm.kl_free": AT_LEAST_0,
-    "wm.gate_alpha": AT_LEAST_0, "wm.gate_kappa": OPEN_UNIT, "wm.gate_free": AT_LEAST_0,
-    "wm.gate_lambda": AT_LEAST_0, "wm.gate_noise": AT_LEAST_0,
-    "wm.reward_scale": AT_LEAST_0, "wm.discount_scale": AT_LEAST_0,
-    "wm.lr": POSITIVE, "wm.eps": POSITIVE, "wm.clip": POSITIVE, "wm.weight_decay": AT_LEAST_0,
-    "ac.horizon": AT_LEAST_1, "ac.starts": AT_LEAST_0, "ac.gamma": UNIT, "ac.lam": UNIT,
-    "ac.actor_layers": AT_LEAST_0, "ac.critic_layers": AT_LEAST_0,
-    "ac.actor_lr": POSITIVE, "ac.critic_lr": POSITIVE, "ac.actor_grad_mix": UNIT,
-    "ac.actor_min_std": AT_LEAST_0, "ac.entropy": AT_LEAST_0, "ac.slow_critic_every": AT_LEAST_1,
-    "ac.eps": POSITIVE, "ac.clip": POSITIVE, "ac.weight_decay": AT_LEAST_0,
-    "drq.feature_dim": AT_LEAST_1, "drq.hidden": AT_LEAST_1, "drq.cnn_depth": AT_LEAST_1,
-    "drq.frame_stack": AT_LEAST_1, "drq.nstep": AT_LEAST_1, "drq.gamma": UNIT, "drq.tau": UNIT,
-    "drq.lr": POSITIVE, "drq.std_start": AT_LEAST_0, "drq.std_end": AT_LEAST_0,
-    "drq.std_steps": AT_LEAST_1, "drq.std_clip": AT_LEAST_0, "drq.shift_pad": AT_LEAST_0,
-    "proto.prototypes": AT_LEAST_1, "proto.dim": AT_LEAST_1, "proto.temperature": POSITIVE,
-    "proto.sinkhorn_eps": POSITIVE, "proto.sinkhorn_iters": AT_LEAST_1,
-    "proto.warm_up": AT_LEAST_0, "proto.freeze_updates": AT_LEAST_0, "proto.ema_fraction": UNIT,
-    "proto.shift": AT_LEAST_0, "proto.swav_scale": AT_LEAST_0, "proto.temp_scale": AT_LEAST_0,
-    "proto.norm_scale": AT_LEAST_0,
     "env.action_repeat": AT_LEAST_1, "env.time_limit": AT_LEAST_1, "env.image_size": AT_LEAST_1,
     "env.sticky": UNIT, "env.num_envs": AT_LEAST_1, "env.eval_envs": AT_LEAST_1,
     "env.flicker": Range(0, 1, open_high=True), "env.show_steps": AT_LEAST_0,
@@ -96,23 +73,20 @@ BACKGROUND_OPTIONS = ("env.background", "env.background_dir")
 
 
 def check_config(config: Config) -> None:
-    """Raise ConfigError for the first value out of its range or in conflict with the task."""
+    """Raise ConfigError for the first value out of its range or in conflict with the task,
+    then run the agent's own checks (its settings module's ``check``)."""
+    settings = settings_of(config.agent)
+    ranges = {**RANGES, **settings.RANGES}
     for key, value in numeric_values(config).items():
-        if key in RANGES and value not in RANGES[key]:
+        if key in ranges and value not in ranges[key]:
             finite = "" if math.isfinite(value) else ", which is not a finite number"
-            raise ConfigError(f"config key {key!r} got {value!r}{finite}; valid: {RANGES[key]}")
-    _check_horizon(config)
+            raise ConfigError(f"config key {key!r} got {value!r}{finite}; valid: {ranges[key]}")
     _check_sequences(config)
-    _check_starts(config)
-    _check_warm_up(config)
     _check_atari_options(config)
     _check_family_options(config)
     _check_background_options(config)
-    _check_gate_objective(config)
-    if config.ac.memoryless_starts and not config.ac.memoryless:
-        raise ConfigError("ac.memoryless_starts=true without ac.memoryless; valid: "
-                          "ac.memoryless=true with it (the control that acts and imagines from "
-                          "each observation alone), or ac.memoryless_starts=false")
+    if hasattr(settings, "check"):
+        settings.check(config)
 
 
 def numeric_values(config: Config) -> dict[str, float]:
@@ -141,20 +115,6 @@ def max_episode_steps(config: Config) -> int:
     return math.ceil(env_steps / env.action_repeat) + 1
 
 
-def _check_warm_up(config: Config) -> None:
-    if config.proto.warm_up >= config.train.length:
-        raise ConfigError(f"config key 'proto.warm_up' got {config.proto.warm_up}, which leaves "
-                          f"no step of a train.length={config.train.length} sequence to the "
-                          f"prototype losses; valid: < train.length")
-
-
-def _check_horizon(config: Config) -> None:
-    if config.ac.alignment == "release" and config.ac.horizon < 2:
-        raise ConfigError(f"config key 'ac.horizon' got {config.ac.horizon} with "
-                          "ac.alignment=release, which imagines horizon - 1 steps; valid: >= 2 "
-                          "(or ac.alignment=next_state)")
-
-
 def _check_sequences(config: Config) -> None:
     train, steps = config.train, max_episode_steps(config)
     crosses = family_of(config.env.task).windows_cross_episodes  # the family checks its own
@@ -172,20 +132,6 @@ def _check_sequences(config: Config) -> None:
                           f"steps are more steps than the replay ever holds "
                           f"(train.replay_capacity={train.replay_capacity}); valid: "
                           f"train.batch <= {most}")
-
-
-def _check_starts(config: Config) -> None:
-    """``ac.starts`` draws from the posteriors that
-    :func:`vsgjax.agents.dreamer.behaviour.start_states` gives."""
-    train = config.train
-    drop_last = config.wm.discount_head and config.ac.alignment == "release"
-    available = train.batch * (train.length - drop_last)
-    if config.ac.starts > available:
-        dropped = " minus its last step (a discount head)" if drop_last else ""
-        raise ConfigError(
-            f"config key 'ac.starts' got {config.ac.starts}, more than the {available} posterior "
-            f"states of an update (train.batch={train.batch} x train.length={train.length}"
-            f"{dropped}); valid: 0 (every one) to {available}")
 
 
 def _check_atari_options(config: Config) -> None:
@@ -241,19 +187,3 @@ def _check_background_options(config: Config) -> None:
         raise ConfigError(f"env.background_dir={env.background_dir!r} with env.background="
                           f"{env.background!r}; valid: env.background_dir='' (the folder is read "
                           "only with env.background=video)")
-
-
-def _check_gate_objective(config: Config) -> None:
-    """A gate objective other than the release's needs a model with gates; GateL0RD's gate
-    has no fixed bias (vsgjax/agents/dreamer/gate_objectives.py)."""
-    objective, model = config.wm.gate_objective, config.model
-    if objective != "release" and model.name not in gated_models():
-        raise ConfigError(f"wm.gate_objective={objective} needs a model with gates; model "
-                          f"{model.name!r} has none; valid: the gated models "
-                          f"({', '.join(gated_models())}), or wm.gate_objective=release")
-    default_bias = ModelConfig().gate_bias
-    if objective == "gatel0rd" and model.gate_bias != default_bias:
-        raise ConfigError(f"model.gate_bias={model.gate_bias} with wm.gate_objective=gatel0rd, "
-                          "whose ReTanh gate has no fixed bias (GateL0RD's gate is a dense "
-                          f"layer with a learned bias); valid: model.gate_bias={default_bias} "
-                          "(not read by gatel0rd), or another wm.gate_objective")

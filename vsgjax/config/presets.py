@@ -18,11 +18,11 @@ from vsgjax.config.schema import (
     Config,
     ConfigError,
     EnvConfig,
-    ModelConfig,
     apply_values,
+    config_class,
     parse_overrides,
 )
-from vsgjax.registry.agents import AGENTS, DEFAULT_MODEL, MODELS, AgentEntry, agent_entry
+from vsgjax.registry.agents import AGENTS, DEFAULT_MODEL, MODELS, AgentEntry
 from vsgjax.registry.names import did_you_mean
 from vsgjax.registry.tasks import (
     DEFAULT_TASK,
@@ -44,11 +44,16 @@ def preset_column(task: str) -> str:
         raise ConfigError(str(error)) from None
 
 
-def preset_layers(entry: AgentEntry, task: str, size: str) -> list[dict]:
-    """The presets of an agent for a task at a size, in the order they apply: the column's,
-    the entry's own, the task's (a presets module's ``for_task(name)``, given the task name
-    after its family's prefix), the size's."""
-    tables, column = importlib.import_module(entry.presets), preset_column(task)
+def preset_layers(entry: AgentEntry, family: TaskFamily, task: str, size: str) -> list[dict]:
+    """The presets of an agent for a task of a family at a size, in the order they apply: the
+    column's, the entry's own, the task's (a presets module's ``for_task(name)``, given the
+    task name after its family's prefix), the size's. ConfigError when the agent's presets lack
+    the family's column."""
+    tables, column = importlib.import_module(entry.presets), family.preset_column
+    if column not in tables.COLUMN:
+        raise ConfigError(f"model {entry.name!r} ({entry.display}) has no presets for the "
+                          f"{column!r} column of task {task!r}; its columns: "
+                          f"{', '.join(tables.COLUMN)}")
     for_task = getattr(tables, "for_task", lambda name: {})
     return [tables.COLUMN[column], entry.model, entry.by_column.get(column, {}),
             for_task(task.partition("_")[2]), tables.SIZE[size], entry.by_size.get(size, {})]
@@ -85,14 +90,16 @@ def _models_for(family: TaskFamily) -> list[str]:
             if family.actions in entry.actions and family.observations in entry.observations]
 
 
-def check_keys_for(entry: AgentEntry, values: dict) -> None:
-    """Every override key is one the agent reads; ConfigError naming the key and the model."""
-    for key in values:
-        if not entry.takes(key):
+def check_keys_for(entry: AgentEntry, keys: Sequence[str]) -> None:
+    """Every override key is one the agent reads; ConfigError naming the key, the model and
+    the models that read it."""
+    for key in keys:
+        readers = [name for name, other in AGENTS.items() if other.takes(key)]
+        if readers and not entry.takes(key):  # a key no agent reads is the schema's to refuse
             raise ConfigError(
                 f"config key {key!r} is not read by model {entry.name!r} ({entry.display}); "
-                f"its keys: {', '.join(f'{s}.*' for s in entry.sections)}, env.*, train.*, "
-                "model.precision")
+                f"read by {', '.join(readers)}; its keys: "
+                f"{', '.join(f'{s}.*' for s in entry.sections)}, env.*, train.*, model.precision")
 
 
 def make_config(
@@ -102,18 +109,21 @@ def make_config(
     overrides: Sequence[str] = (),
 ) -> Config:
     """Resolve presets for (task's column, model, size), then apply ``key=value`` overrides;
-    every value is checked (:mod:`vsgjax.config.checks`)."""
-    column = preset_column(task)
+    every value is checked (:mod:`vsgjax.config.checks`). The model and the task are resolved
+    here, once, and their registry entries passed down."""
+    try:
+        family = family_of(task)
+    except TaskError as error:
+        raise ConfigError(str(error)) from None
     _check_name("model", model, MODELS)
     _check_name("size", size, SIZES)
-    entry = agent_entry(model)
-    check_agent_fits(entry, family_of(task), task, size)
-    config = Config(domain=column, size=size, model=ModelConfig(name=model),
-                    env=EnvConfig(task=task))
-    for preset in preset_layers(entry, task, size):
+    entry = AGENTS[model]
+    check_agent_fits(entry, family, task, size)
+    config = config_class(model)(domain=family.preset_column, size=size,
+                                 env=EnvConfig(task=task))
+    for preset in preset_layers(entry, family, task, size):
         config = apply_values(config, preset)
-    values = parse_overrides(overrides)
-    check_keys_for(entry, values)
-    config = apply_values(config, values)
+    check_keys_for(entry, [item.partition("=")[0].strip() for item in overrides if "=" in item])
+    config = apply_values(config, parse_overrides(overrides, type(config)))
     check_config(config)
     return config

@@ -283,7 +283,7 @@ class RunWriter(RunDir):
         self.write_scores()
 
     def write_scores(self) -> None:
-        method = agent_entry(self.config.model.name).display
+        method = agent_entry(self.config.agent).display
         record = {"task": self.config.env.task, "method": method,
                   "seed": str(self.seed), **self.scores}
         checkpoint.atomic_write(self.path(SCORES_FILE), (json.dumps(record) + "\n").encode())

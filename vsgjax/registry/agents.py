@@ -2,15 +2,18 @@
 its presets and what it can train on.
 
 An entry's ``implementation`` is the agent class (``"module:Class"``, built as
-``Class(config, obs_shape, action_dim, discrete)``; see :mod:`vsgjax.agents.interface`) and
-``presets`` the module of its family's preset tables (``domain`` and ``size`` layers, pure
-data). The entry's own layers (``model``, ``by_column``, ``by_size``) hold what differs between
-agents of one family. :func:`vsgjax.config.make_config` applies, in order: the family's
+``Class(config, obs_shape, action_dim, discrete)``; see :mod:`vsgjax.agents.interface`),
+``settings`` the module of its family's config sections (their dataclasses, ranges and checks;
+``sections`` names the ones the agent reads) and ``presets`` the module of its family's preset
+tables (``COLUMN`` and ``SIZE`` layers, pure data, for the preset columns it supports). The
+entry's own layers (``model``, ``by_column``, ``by_size``) hold what differs between agents of
+one family. :func:`vsgjax.config.make_config` applies, in order: the family's
 column layer, the entry's ``model`` layer, its ``by_column`` layer, the family's size layer, the
 entry's ``by_size`` layer, then the command line's overrides.
 
-Adding an agent: its package under ``vsgjax/agents/``, its presets module, and one entry here
-(docs/architecture.md shows DrQ-v2 as the example).
+Adding an agent: its package under ``vsgjax/agents/`` (its agent class, settings and presets
+modules), and one entry here (docs/architecture.md shows DrQ-v2 as the example); nothing under
+``vsgjax/config/`` changes.
 """
 
 from __future__ import annotations
@@ -22,8 +25,9 @@ from vsgjax.registry.tasks import CONTINUOUS, DISCRETE, IMAGE, VECTOR
 
 # Config sections every agent reads; an agent names the others it reads in ``sections``.
 SHARED_SECTIONS = ("env", "train")
-# Keys of other sections every agent takes: the matmul dtype.
-SHARED_KEYS = ("model.name", "model.precision")
+# Keys outside the agent's sections that every agent takes: the matmul dtype (a top-level field
+# of the config that the command line sets as ``model.precision``).
+SHARED_KEYS = ("model.precision",)
 
 
 @dataclass(frozen=True)
@@ -38,6 +42,7 @@ class AgentEntry:
     name: str
     display: str
     implementation: str
+    settings: str
     presets: str
     sections: tuple[str, ...]
     gated: bool = False
@@ -61,7 +66,9 @@ class AgentEntry:
 
 
 _DREAMER = "vsgjax.agents.dreamer.agent:DreamerAgent"
+_DREAMER_SETTINGS = "vsgjax.agents.dreamer.settings"
 _DREAMER_PRESETS = "vsgjax.agents.dreamer.presets"
+_DREAMER_MODULES = (_DREAMER, _DREAMER_SETTINGS, _DREAMER_PRESETS)
 _DREAMER_SECTIONS = ("model", "wm", "ac", "optim")
 # DreamerPro (fdeng18/dreamer-pro, configs.yaml: `defaults` then `dmc`): no decoder, prototypes;
 # its DMC world model and actor-critic sizes, in the layer after the family's column.
@@ -74,28 +81,28 @@ _PRO_OPTIONS = (("dynamics", "RSSM"), ("representation", "prototypes"))
 
 AGENTS: dict[str, AgentEntry] = {entry.name: entry for entry in (
     AgentEntry(
-        "dreamerv1", "DreamerV1", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS,
+        "dreamerv1", "DreamerV1", *_DREAMER_MODULES, _DREAMER_SECTIONS,
         model={"model.stoch": 30, "model.classes": 0, "model.cell_norm": True},
         by_column={"bbs": {"wm.kl_free": 1.0, "model.stoch": 32},  # bringbackshapes_gaussian
                    "dmc": {"model.deter": 200, "model.hidden": 200}},
         by_size={"cpu": {"model.stoch": 16}, "debug": {"model.stoch": 8}},
         options=(("dynamics", "RSSM"),)),
     AgentEntry(
-        "dreamerv2", "DreamerV2", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS,
+        "dreamerv2", "DreamerV2", *_DREAMER_MODULES, _DREAMER_SECTIONS,
         model={"model.stoch": 32, "model.classes": 32, "model.cell_norm": True},
         by_size={"small": {"model.stoch": 16, "model.classes": 16},
                  "cpu": {"model.stoch": 8, "model.classes": 8},
                  "debug": {"model.stoch": 4, "model.classes": 4}},
         options=(("dynamics", "RSSM"),)),
     AgentEntry(
-        "vsg", "VSG", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS, gated=True,
+        "vsg", "VSG", *_DREAMER_MODULES, _DREAMER_SECTIONS, gated=True,
         model={"model.stoch": 32, "model.classes": 32, "model.cell_norm": False},
         by_size={"small": {"model.stoch": 16, "model.classes": 16},
                  "cpu": {"model.stoch": 8, "model.classes": 8},
                  "debug": {"model.stoch": 4, "model.classes": 4}},
         options=(("dynamics", "RSSM"),)),
     AgentEntry(
-        "svsg", "SVSG", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS, gated=True,
+        "svsg", "SVSG", *_DREAMER_MODULES, _DREAMER_SECTIONS, gated=True,
         model={"model.deter": 0, "model.stoch": 1024, "model.classes": 0,
                "model.cell_norm": False, "wm.kl_masked": True},
         by_column={"bbs": {"wm.kl_free": 1.0}},
@@ -104,28 +111,29 @@ AGENTS: dict[str, AgentEntry] = {entry.name: entry for entry in (
                  "debug": {"model.deter": 0, "model.stoch": 32}},
         options=(("dynamics", "SVSG"),)),
     AgentEntry(
-        "ssm", "SSM", _DREAMER, _DREAMER_PRESETS, _DREAMER_SECTIONS,
+        "ssm", "SSM", *_DREAMER_MODULES, _DREAMER_SECTIONS,
         model={"model.deter": 0, "model.stoch": 30, "model.classes": 0,
                "model.cell_norm": False},
         by_size={"small": {"model.deter": 0}, "cpu": {"model.deter": 0, "model.stoch": 16},
                  "debug": {"model.deter": 0, "model.stoch": 8}},
         options=(("dynamics", "SSM"),)),
     AgentEntry(
-        "dreamerpro", "DreamerPro", _DREAMER, _DREAMER_PRESETS, _PRO_SECTIONS,
+        "dreamerpro", "DreamerPro", *_DREAMER_MODULES, _PRO_SECTIONS,
         observations=(IMAGE,),
         model={"model.stoch": 32, "model.classes": 0, "model.cell_norm": True},
         by_column={"dmc": _PRO_DMC}, by_size={"debug": {"model.stoch": 8}},
         options=_PRO_OPTIONS),
     AgentEntry(
         # the VSG paper's VSGPro: DreamerPro with VSG's sparse-gated cell and sparsity loss
-        "vsgpro", "VSGPro", _DREAMER, _DREAMER_PRESETS, _PRO_SECTIONS, gated=True,
+        "vsgpro", "VSGPro", *_DREAMER_MODULES, _PRO_SECTIONS, gated=True,
         observations=(IMAGE,),
         model={"model.stoch": 32, "model.classes": 0, "model.cell_norm": False},
         by_column={"dmc": _PRO_DMC}, by_size={"debug": {"model.stoch": 8}},
         options=_PRO_OPTIONS),
     AgentEntry(
         "drqv2", "DrQ-v2", "vsgjax.agents.drqv2.agent:DrQV2Agent",
-        "vsgjax.agents.drqv2.presets", ("drq",), actions=(CONTINUOUS,)),
+        "vsgjax.agents.drqv2.settings", "vsgjax.agents.drqv2.presets", ("drq",),
+        actions=(CONTINUOUS,)),
 )}
 
 MODELS = tuple(AGENTS)

@@ -11,7 +11,7 @@ from vsgjax.agents.dreamer.dynamics import make_dynamics
 from vsgjax.config import make_config
 
 CONFIG = make_config("bbs_basic", "vsg", "debug", ["wm.lr=1e-3"])
-DYNAMICS = make_dynamics(CONFIG.model)
+DYNAMICS = make_dynamics(CONFIG.model, CONFIG.agent)
 H = 3
 
 

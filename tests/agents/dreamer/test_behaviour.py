@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from vsgjax.agents.dreamer import behaviour as bhv
-from vsgjax.config import BehaviourConfig
+from vsgjax.agents.dreamer.settings import BehaviourConfig
 
 FEAT, ACTIONS, HORIZON, GAMMA = 3, 2, 4, 0.9
 

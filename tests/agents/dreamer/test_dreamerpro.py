@@ -220,7 +220,7 @@ def test_the_pages_table_names_every_key_that_differs_from_dreamerv2():
         differing = {f"{section}.{key}" for section, values in data.items()
                      if isinstance(values, dict) for key, value in values.items()
                      if section == "proto" or base[section].get(key) != value}
-        assert differing - {"model.name"} <= named, sorted(differing - named)
+        assert differing <= named, sorted(differing - named)
 
 
 # --- the tanh-normal actor (DreamerPro's `actor.dist: tanh_normal`) ------------------------------

@@ -44,7 +44,7 @@ class Setup:
 
     def __init__(self, name):
         self.name = name
-        self.dyn = dyn = make_dynamics(make_config("bbs_basic", name, "debug").model)
+        self.dyn = dyn = make_dynamics(make_config("bbs_basic", name, "debug").model, name)
         keys = jax.random.split(jax.random.PRNGKey(0), 5)
         self.params = dyn.init(keys[0], E, A)
         self.embeds = jax.random.normal(keys[1], (B, T, E))
@@ -212,21 +212,21 @@ def test_svsg_closed_gates_copy_the_previous_latent_exactly():
 def test_make_dynamics_rejects_bad_configs():
     model = make_config("bbs_basic", "vsg", "debug").model
     with pytest.raises(ValueError, match="'lstm'.*dreamerv1"):
-        make_dynamics(dataclasses.replace(model, name="lstm"))
+        make_dynamics(model, "lstm")
     with pytest.raises(ValueError, match="model.classes=4"):
-        make_dynamics(dataclasses.replace(model, name="svsg"))
+        make_dynamics(model, "svsg")
     with pytest.raises(ValueError, match="model.deter must be positive"):
-        make_dynamics(dataclasses.replace(model, deter=0))
+        make_dynamics(dataclasses.replace(model, deter=0), "vsg")
     with pytest.raises(ValueError, match="gate_mode 'soft'"):
-        make_dynamics(dataclasses.replace(model, gate_mode="soft"))
+        make_dynamics(dataclasses.replace(model, gate_mode="soft"), "vsg")
     with pytest.raises(ValueError, match="classes must be 0"):
-        make_dynamics(dataclasses.replace(model, classes=1))
+        make_dynamics(dataclasses.replace(model, classes=1), "vsg")
 
 
 def test_dynamics_is_hashable_and_equal_for_equal_configs():
     cfg = make_config("bbs_basic", "vsg", "debug").model
-    assert hash(make_dynamics(cfg)) == hash(make_dynamics(cfg))
-    assert make_dynamics(cfg) == make_dynamics(dataclasses.replace(cfg))
+    assert hash(make_dynamics(cfg, "vsg")) == hash(make_dynamics(cfg, "vsg"))
+    assert make_dynamics(cfg, "vsg") == make_dynamics(dataclasses.replace(cfg), "vsg")
 
 
 # --- distributions ----------------------------------------------------------------------------
@@ -274,7 +274,7 @@ def test_categorical_kl_and_entropy_closed_form_and_finite_when_saturated():
 
 def test_threshold_gate_mode_makes_vsg_gates_deterministic():
     cfg = dataclasses.replace(make_config("bbs_basic", "vsg", "debug").model, gate_mode="threshold")
-    dyn = make_dynamics(cfg)
+    dyn = make_dynamics(cfg, "vsg")
     params = dyn.init(jax.random.PRNGKey(0), E, A)
     prev, action = dyn.initial(), jnp.ones(A)
     step = jax.jit(dyn.img_step)

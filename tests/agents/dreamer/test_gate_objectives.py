@@ -26,7 +26,8 @@ from vsgjax.agents.dreamer.cells import (
     sparse_gru_cell,
 )
 from vsgjax.agents.dreamer.gate_objectives import LOSS_NAMES, gate_cell, gate_loss, rate_kl
-from vsgjax.config import GATE_OBJECTIVES, ConfigError, WorldModelConfig, make_config
+from vsgjax.agents.dreamer.settings import GATE_OBJECTIVES, WorldModelConfig
+from vsgjax.config import ConfigError, make_config
 from vsgjax.registry.agents import gated_models
 
 LOGITS = np.array([[[-2.0, 0.5], [1.0, -0.3]]], np.float32)  # [B=1, T=2, D=2]

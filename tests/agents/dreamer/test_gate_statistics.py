@@ -141,7 +141,7 @@ def test_statistics_are_those_of_the_posterior_pass(observed):
     assert stats.open_per_unit.shape == (units,)
     summary = stats.summary()
     assert 0.0 < summary["gates/open"] < 1.0 and 0.0 < summary["gates/prob_prior"] < 1.0
-    assert ("gates/stoch_updated" in summary) == (model.config.model.name == "svsg")
+    assert ("gates/stoch_updated" in summary) == (model.config.agent == "svsg")
 
 
 def test_sampled_gates_are_exactly_0_or_1_with_a_straight_through_gradient(observed):
@@ -165,7 +165,7 @@ def test_sampled_gates_are_exactly_0_or_1_with_a_straight_through_gradient(obser
 
 def test_a_closed_unit_keeps_its_value_exactly(observed):
     model, _, batch, stats, posts, _ = observed
-    value = posts.deter if model.config.model.name == "vsg" else posts.stoch
+    value = posts.deter if model.config.agent == "vsg" else posts.stoch
     closed = (stats.gate[:, 1:] == 0) & ~batch["is_first"][:, 1:, None]
     opened = (stats.gate[:, 1:] == 1) & ~batch["is_first"][:, 1:, None]
     same = value[:, 1:] == value[:, :-1]

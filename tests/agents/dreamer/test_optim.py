@@ -9,7 +9,8 @@ import optax
 import pytest
 
 from vsgjax.agents.dreamer.optim import agent_optimizers, make_optimizer, scale_by_tf_adam
-from vsgjax.config import OptimConfig, make_config
+from vsgjax.agents.dreamer.settings import OptimConfig
+from vsgjax.config import make_config
 
 PARAMS = {"kernel": jnp.array([[1.1, -2.3], [0.7, 3.9]], jnp.float32),
           "bias": jnp.array([0.3, -0.05], jnp.float32)}

@@ -133,7 +133,7 @@ def _categorical_states(key, length=3, stoch=4, classes=5):
 
 
 def test_kl_balancing_splits_gradients_between_prior_and_posterior():
-    dyn = make_dynamics(make_config("bbs_basic", "dreamerv2", "debug").model)
+    dyn = make_dynamics(make_config("bbs_basic", "dreamerv2", "debug").model, "dreamerv2")
     state, post_logits, prior_logits = _categorical_states(jax.random.PRNGKey(1))
     sg = jax.lax.stop_gradient
 
@@ -175,7 +175,7 @@ def _svsg_states(key, gate, length=3, dims=6):
 
 
 def test_masked_kl_is_zero_when_every_gate_is_closed():
-    dyn = make_dynamics(make_config("bbs_basic", "svsg", "debug").model)
+    dyn = make_dynamics(make_config("bbs_basic", "svsg", "debug").model, "svsg")
     closed = jnp.zeros((3, 6))
     post, prior = _svsg_states(jax.random.PRNGKey(2), closed)
     np.testing.assert_array_equal(per_step_kl(dyn, post, prior, mask=closed), 0.0)

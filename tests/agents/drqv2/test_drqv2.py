@@ -22,7 +22,7 @@ from vsgjax.agents.drqv2 import losses, presets, schedule
 from vsgjax.agents.drqv2.agent import DrQV2Agent
 from vsgjax.agents.drqv2.augment import random_shift, shift_crop
 from vsgjax.agents.drqv2.networks import Encoder, encoder_size, scale_pixels
-from vsgjax.config.schema import Config, apply_values
+from vsgjax.config.schema import apply_values, default_config
 
 IMAGE = {"image": (16, 16, 3)}
 VECTOR = {"vector": (5,)}
@@ -33,8 +33,8 @@ TINY = {"drq.hidden": 16, "drq.feature_dim": 8, "drq.cnn_depth": 4, "drq.shift_p
 
 
 def make_agent(obs=IMAGE, **overrides) -> DrQV2Agent:
-    config = apply_values(Config(), {**TINY, **{k.replace("__", "."): v
-                                                for k, v in overrides.items()}})
+    config = apply_values(default_config("drqv2"), {**TINY, **{k.replace("__", "."): v
+                                                              for k, v in overrides.items()}})
     return DrQV2Agent(config, obs, ACTION_DIM, False)
 
 
@@ -672,9 +672,9 @@ def test_replay_needs_and_rejections():
     assert make_agent(VECTOR).replay == (4, 0)
     assert make_agent(VECTOR).initial_carry(3).shape == (3, 0)
     with pytest.raises(ValueError, match="continuous"):
-        DrQV2Agent(Config(), IMAGE, 3, True)
+        DrQV2Agent(default_config("drqv2"), IMAGE, 3, True)
     with pytest.raises(ValueError, match="one image key or vector keys"):
-        DrQV2Agent(Config(), {**IMAGE, **VECTOR}, 3, False)
+        DrQV2Agent(default_config("drqv2"), {**IMAGE, **VECTOR}, 3, False)
     agent, batch = make_agent(VECTOR), vector_batch(make_agent(VECTOR))
     short = {k: v[:, 1:] for k, v in batch.items()}
     with pytest.raises(ValueError, match="windows of 4 steps"):
@@ -707,6 +707,6 @@ def test_presets_are_the_authors_config():
     tables = [*presets.COLUMN.values(), *presets.SIZE.values(), *presets.TASK.values(),
               *presets.TASK_ONLY.values(), *presets.DIFFICULTY.values()]
     for table in tables:
-        apply_values(Config(), table)  # every key exists with its type
+        apply_values(default_config("drqv2"), table)  # every key exists with its type
     tree = ast.parse(inspect.getsource(presets))
     assert not [node for node in ast.walk(tree) if isinstance(node, ast.Import | ast.ImportFrom)]

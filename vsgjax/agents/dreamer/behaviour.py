@@ -17,8 +17,9 @@ import jax.numpy as jnp
 from jax.scipy.special import ndtri
 
 from vsgjax.agents.dreamer.networks import MLP, normal_log_prob
+from vsgjax.agents.dreamer.settings import ACTOR_GRADS, ALIGNMENTS, BehaviourConfig
 from vsgjax.agents.precision import compute_dtype
-from vsgjax.config import ACTOR_GRADS, ALIGNMENTS, BehaviourConfig, Config
+from vsgjax.config import Config
 
 sg = jax.lax.stop_gradient
 
@@ -197,7 +198,7 @@ class Behaviour:
     def from_config(cls, config: Config, action_dim: int, discrete: bool) -> Behaviour:
         """The actor-critic of ``config`` (hidden width ``wm.mlp_units``, compute dtype
         ``model.precision``) for an action space."""
-        return cls(config.ac, config.wm.mlp_units, action_dim, discrete, config.model.precision)
+        return cls(config.ac, config.wm.mlp_units, action_dim, discrete, config.precision)
 
     @property
     def dtype(self) -> jnp.dtype:

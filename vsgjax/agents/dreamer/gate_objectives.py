@@ -31,7 +31,7 @@ import jax.numpy as jnp
 
 from vsgjax.agents.dreamer import gates
 from vsgjax.agents.dreamer.cells import BERNOULLI_GATE, RETANH, GateCell
-from vsgjax.config import GATE_OBJECTIVES, WorldModelConfig
+from vsgjax.agents.dreamer.settings import GATE_OBJECTIVES, WorldModelConfig
 
 RELEASE, RATE, RATE_KL, GATEL0RD = GATE_OBJECTIVES
 # The loss term each objective adds to the world-model loss, and its unscaled value's metric.

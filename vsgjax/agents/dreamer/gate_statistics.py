@@ -335,7 +335,7 @@ def gate_statistics_core(config: Config, wm_params: dict, batch: Mapping,
         closed_runs=closed_run_lengths(gate, batch["is_first"]),
         longest_closed=longest_closed_runs(gate, batch["is_first"]),
         is_first=jnp.asarray(batch["is_first"], bool),
-        model=dyn.cfg.name,
+        model=dyn.name,
         kappa=kappa,
     )
 
@@ -359,7 +359,7 @@ def gate_statistics(params: TrainedParams | dict, batch: Mapping, key: jax.Array
     elif config is None:
         raise TypeError("gate_statistics needs config= with a plain params dict (the "
                         "TrainedParams of vsgjax.load carry their config)")
-    name = config.model.name
+    name = config.agent
     if name not in gated_models():
         raise ValueError(f"model {name!r} has no gates: gate statistics exist only for the "
                          f"gated models ({', '.join(gated_models())})")

@@ -23,7 +23,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from vsgjax.config import EPS_PLACEMENTS, WEIGHT_DECAYS, Config, OptimConfig
+from vsgjax.agents.dreamer.settings import EPS_PLACEMENTS, WEIGHT_DECAYS, OptimConfig
+from vsgjax.config import Config
 
 ADAM_B1, ADAM_B2 = 0.9, 0.999  # TF's and optax's defaults; the release sets neither
 

@@ -159,12 +159,13 @@ class WorldModel:
 
     @functools.cached_property
     def dynamics(self):
-        return make_dynamics(self.config.model, gate_objectives.gate_cell(self.config.wm))
+        return make_dynamics(self.config.model, self.config.agent, self.config.precision,
+                             gate_objectives.gate_cell(self.config.wm))
 
     @property
     def dtype(self) -> jnp.dtype:
         """Compute dtype of every matmul and convolution (``model.precision``)."""
-        return compute_dtype(self.config.model.precision)
+        return compute_dtype(self.config.precision)
 
     @property
     def encoder(self) -> ConvEncoder:
@@ -320,13 +321,13 @@ class WorldModel:
         dyn = self.dynamics
         if not dyn.gated:
             raise ValueError(
-                f"wm.kl_masked needs a gated model, got model {self.config.model.name!r}")
+                f"wm.kl_masked needs a gated model, got model {self.config.agent!r}")
         sample = jax.vmap(dyn.gates)(posts)[0]
         latent_shape = jax.eval_shape(dyn.kl, dyn.initial(), dyn.initial()).shape
         if sample.shape[1:] != latent_shape:
             raise ValueError(
                 f"wm.kl_masked needs one gate per latent dimension (svsg); model "
-                f"{self.config.model.name!r} has gates {sample.shape[1:]} and KL {latent_shape}")
+                f"{self.config.agent!r} has gates {sample.shape[1:]} and KL {latent_shape}")
         return sample
 
     def loss(self, params: dict, batch: dict, key: jax.Array, targets: dict | None = None):

@@ -93,7 +93,7 @@ class DrQV2Agent:
 
     @property
     def dtype(self):
-        return compute_dtype(self.config.model.precision)
+        return compute_dtype(self.config.precision)
 
     @property
     def stack_shape(self) -> tuple[int, ...]:

@@ -1,7 +1,8 @@
 """DrQ-v2's presets: the authors' hyperparameters per preset column (``COLUMN``), the sizes
 (``SIZE``) and the authors' per-task overrides (``TASK``, ``TASK_ONLY``, ``DIFFICULTY``), as
 dotted config keys. Pure data (facebookresearch/drqv2 ``cfgs/config.yaml`` and ``cfgs/task/``);
-:func:`vsgjax.config.make_config` applies ``COLUMN`` and ``SIZE``.
+:func:`vsgjax.config.make_config` applies ``COLUMN`` and ``SIZE``. ``COLUMN`` holds the preset
+columns DrQ-v2 trains on (continuous actions); make_config refuses a task of another column.
 
 Units: ``train.steps``, ``train.prefill`` and ``train.eval_every`` count env steps (frames, the
 authors' ``*_frames``); ``train.train_every`` (their ``update_every_steps``) and
@@ -48,12 +49,6 @@ COLUMN = {
         **_AUTHORS,
         "env.action_repeat": 4, "env.time_limit": 3000, "env.image_size": 64,
         "train.steps": 2_500_000, "train.eval_every": 50_000,
-    },
-    # Only so that make_config resolves a column: DrQ-v2 rejects discrete actions (its
-    # registry entry lists continuous actions only, and DrQV2Agent raises on discrete=True).
-    "atari": {
-        "env.action_repeat": 2, "env.time_limit": 1000, "env.image_size": 84,
-        **_AUTHORS,
     },
 }
 

@@ -13,19 +13,21 @@ from vsgjax.agents.dreamer.dynamics.base import (
 from vsgjax.agents.dreamer.dynamics.rssm import RSSM
 from vsgjax.agents.dreamer.dynamics.ssm import SSM
 from vsgjax.agents.dreamer.dynamics.svsg import SVSG
-from vsgjax.config import ModelConfig
+from vsgjax.agents.dreamer.settings import ModelConfig
 from vsgjax.registry.agents import agent_entry, dreamer_models
 
 _CLASSES = {cls.__name__: cls for cls in (RSSM, SVSG, SSM)}  # an entry's "dynamics" option
 
 
-def make_dynamics(model_cfg: ModelConfig, gate: GateCell = BERNOULLI_GATE) -> Dynamics:
-    """The dynamics of model ``model_cfg.name`` (its registry entry's ``dynamics`` option);
-    ``gate`` is the sparse cell's gate of a gated model."""
-    if model_cfg.name not in dreamer_models():
-        raise ValueError(f"model {model_cfg.name!r} has no latent dynamics; valid: "
+def make_dynamics(model_cfg: ModelConfig, name: str, precision: str = "float32",
+                  gate: GateCell = BERNOULLI_GATE) -> Dynamics:
+    """The dynamics of model ``name`` (its registry entry's ``dynamics`` option) with the
+    ``model`` section ``model_cfg``, matmuls in ``precision``; ``gate`` is the sparse cell's
+    gate of a gated model."""
+    if name not in dreamer_models():
+        raise ValueError(f"model {name!r} has no latent dynamics; valid: "
                          f"{', '.join(dreamer_models())}")
-    return _CLASSES[agent_entry(model_cfg.name).option("dynamics")](model_cfg, gate)
+    return _CLASSES[agent_entry(name).option("dynamics")](model_cfg, name, precision, gate)
 
 
 __all__ = [

@@ -3,7 +3,8 @@ model takes which dynamics: its registry entry's ``dynamics`` option,
 :mod:`vsgjax.registry.agents`).
 
 Every function is PER EXAMPLE (no batch axis); batch with ``jax.vmap`` and per-example keys.
-A model is a frozen (hashable, jit-static) dataclass holding its :class:`ModelConfig`::
+A model is a frozen (hashable, jit-static) dataclass holding its :class:`ModelConfig`, its
+model's name and its precision::
 
     params = dyn.init(key, embed_dim, action_dim)
     prior = dyn.img_step(params, prev_state, prev_action, key)
@@ -16,7 +17,7 @@ Subclasses implement ``init``, ``initial``, ``img_step``, ``feat``/``feat_dim`` 
 posterior step on a pre-projected embedding (``project_embed`` + ``_obs_step_projected``):
 the posterior's first dense layer over ``[·, e]`` is split into a part on ``e`` and a part on
 the rest, so :meth:`observe` projects all ``T`` embeddings in one matmul outside the scan.
-Every dense layer's matmul runs in :attr:`Dynamics.dtype` (``cfg.precision``,
+Every dense layer's matmul runs in :attr:`Dynamics.dtype` (``precision``,
 :mod:`vsgjax.agents.precision`); states, distributions and gates are float32.
 """
 
@@ -39,8 +40,8 @@ from vsgjax.agents.dreamer.cells import (
     open_probability,
 )
 from vsgjax.agents.dreamer.distributions import Latent, LatentSpace
+from vsgjax.agents.dreamer.settings import ModelConfig
 from vsgjax.agents.precision import compute_dtype
-from vsgjax.config import ModelConfig
 from vsgjax.registry.agents import gated_models
 
 
@@ -99,6 +100,8 @@ class Dynamics(abc.ABC):
     """
 
     cfg: ModelConfig
+    name: str  # the model's (its registry entry's)
+    precision: str = "float32"  # the run config's
     gate: GateCell = BERNOULLI_GATE
 
     def __post_init__(self):
@@ -113,8 +116,8 @@ class Dynamics(abc.ABC):
 
     @property
     def dtype(self) -> jnp.dtype:
-        """Compute dtype of the matmuls (``cfg.precision``)."""
-        return compute_dtype(self.cfg.precision)
+        """Compute dtype of the matmuls (``precision``)."""
+        return compute_dtype(self.precision)
 
     @property
     def latent(self) -> LatentSpace:
@@ -274,6 +277,6 @@ class Dynamics(abc.ABC):
         """Gate logits (the ReTanh gate: its pre-activation before the noise), for the
         numerically stable sparsity loss (:mod:`vsgjax.agents.dreamer.gates`)."""
         if not self.gated:
-            raise ValueError(f"model {self.cfg.name!r} has no gates (gated: "
+            raise ValueError(f"model {self.name!r} has no gates (gated: "
                              f"{', '.join(gated_models())})")
         return state.gate_logit

@@ -31,12 +31,12 @@ class RSSM(Dynamics):
         super().__post_init__()
         if self.cfg.deter <= 0:
             raise ValueError(
-                f"model.deter must be positive for {self.cfg.name!r}, got {self.cfg.deter}"
+                f"model.deter must be positive for {self.name!r}, got {self.cfg.deter}"
             )
 
     @property
     def gated(self) -> bool:
-        return agent_entry(self.cfg.name).gated
+        return agent_entry(self.name).gated
 
     @property
     def feat_dim(self) -> int:

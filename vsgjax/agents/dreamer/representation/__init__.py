@@ -31,7 +31,7 @@ __all__ = ["COMPONENTS", "PROTOTYPES", "RECONSTRUCTION", "Prototypes", "Reconstr
 
 def build_representation(config: Config, obs_shape: ObsSpec, embed_size: int) -> Representation:
     """The representation the registry entry of ``config``'s model names."""
-    model = config.model.name
+    model = config.agent
     kind = agent_entry(model).option("representation", RECONSTRUCTION)
     if kind not in COMPONENTS:
         raise ValueError(f"model {model!r} names representation {kind!r}; known: "

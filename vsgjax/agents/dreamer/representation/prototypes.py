@@ -38,12 +38,12 @@ class Prototypes(Representation):
     @property
     def encoder(self) -> ConvEncoder:
         """The world model's image encoder, of which the targets keep an EMA copy."""
-        return ConvEncoder(self.config.wm.cnn_depth, compute_dtype(self.config.model.precision))
+        return ConvEncoder(self.config.wm.cnn_depth, compute_dtype(self.config.precision))
 
     @property
     def projection(self) -> MLP:
         """DreamerPro's ``obs_proj`` / ``feat_proj``: one linear layer to ``proto.dim``."""
-        return MLP(0, 1, (self.config.proto.dim,), dtype=compute_dtype(self.config.model.precision))
+        return MLP(0, 1, (self.config.proto.dim,), dtype=compute_dtype(self.config.precision))
 
     def init(self, key: jax.Array, feat: jax.ShapeDtypeStruct) -> dict:
         """``{proto: {prototypes, obs_proj, feat_proj}}`` from the three splits of ``key``."""

@@ -38,14 +38,14 @@ class Reconstruction(Representation):
     @property
     def decoder(self) -> ConvDecoder:
         return ConvDecoder(self.config.wm.cnn_depth, self.obs_shape.shapes[IMAGE_KEY][-1],
-                           compute_dtype(self.config.model.precision))
+                           compute_dtype(self.config.precision))
 
     @property
     def mlp_decoder(self) -> MLPDecoder:
         spec, wm = self.obs_shape, self.config.wm
         sizes = tuple((key, spec.shapes[key][0]) for key in spec.vector_keys)
         return MLPDecoder(wm.mlp_layers, wm.mlp_units, sizes,
-                          compute_dtype(self.config.model.precision))
+                          compute_dtype(self.config.precision))
 
     @property
     def sizes(self) -> dict[str, int]:
