@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import pickle
 import re
 from pathlib import Path
 
@@ -310,3 +311,11 @@ def test_presets_page_cpu_table_names_every_key_the_cpu_size_sets():
     sets = set(SIZE["cpu"]) | {key for model in DREAMER_MODELS
                                for key in AGENTS[model].by_size.get("cpu", {})}
     assert named == sets
+
+
+def test_a_config_pickles_to_an_equal_config_of_its_agents_class():
+    """The agents' config classes are built at run time; a pickle rebuilds them by name."""
+    for model in MODELS:
+        config = make_config("dmc_walker_walk", model, "debug", ["train.seed=3"])
+        copy = pickle.loads(pickle.dumps(config))
+        assert copy == config and type(copy) is type(config) and hash(copy) == hash(config)

@@ -108,9 +108,14 @@ class Config:
                               f"{type(self).__qualname__}")
 
     def __reduce__(self):
-        # the agents' classes are built at run time: a pickle holds the saved form
-        from vsgjax.config.saved import from_dict, to_dict
-        return from_dict, (to_dict(self),)
+        # the agents' classes are built at run time: a pickle holds the agent's name and the
+        # field values, and rebuilds the class from the registry
+        values = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "agent"}
+        return _rebuild, (self.agent, values)
+
+
+def _rebuild(agent: str, values: dict) -> Config:
+    return config_class(agent)(**values)
 
 
 SHARED_SECTIONS = {"env": EnvConfig, "train": TrainConfig}
