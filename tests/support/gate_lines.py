@@ -20,6 +20,7 @@ RUN_KEYS = {"gates/closed_run_mean", "gates/closed_run_p90", "gates/closed_run_m
             "gates/null_run_mean", "gates/null_run_p90", "gates/null_run_max"}
 HOLDING_KEYS = {f"gates/{name}_{gap}" for gap in HOLDING_GAPS  # those the window fits
                 for name in ("holding", "null_holding")}
+CUE_KEYS = {"gates/prob_step1", "gates/prob_other_steps"}  # where the batch shows episode starts
 
 
 def gate_lines(logdir: Path) -> list[dict]:
@@ -33,7 +34,8 @@ def check_lines(lines: list[dict], final_step: int, first_step: int) -> None:
     steps = [line["step"] for line in lines]
     assert steps[0] == first_step and steps[-1] == final_step and steps == sorted(set(steps))
     for line in lines:
-        assert set(line) - HOLDING_KEYS == {"step", *SUMMARY_KEYS}
+        assert set(line) - HOLDING_KEYS - CUE_KEYS == {"step", *SUMMARY_KEYS}
+        assert len(CUE_KEYS & set(line)) in (0, 2)
         assert {"gates/holding_5", "gates/null_holding_5"} <= set(line)
         fractions = [v for k, v in line.items() if k not in {"step", "gates/kl", *RUN_KEYS}]
         assert all(0.0 <= v <= 1.0 for v in fractions), line
