@@ -45,6 +45,9 @@ from vsgjax.registry.tasks import CONTINUOUS, DISCRETE, FAMILIES, IMAGE, VECTOR,
         (lambda: make_config(overrides=["wm.kl_masked=maybe"]), "'maybe'", ("bool",)),
         (lambda: make_config(task="mujoco_cheetah"), "'mujoco_cheetah'",
          tuple(f"{prefix}_" for prefix in FAMILIES)),
+        # the task picks the presets: an override would leave them another task's
+        (lambda: make_config(overrides=["env.task=mjx_cartpole_swingup"]), "'env.task'",
+         ("--task",)),
     ],
 )
 def test_errors_name_the_bad_value_and_list_valid_ones(call, named, listed):

@@ -253,7 +253,7 @@ def test_the_scan_finds_paths_and_modules():
     assert [t for _, t in _path_candidates(text)] == [
         "vsgjax/loop/driver.py", "docs/mjx.md", "experiments/paper/"]
     assert [t for _, t in _dotted_candidates(text)] == ["vsgjax.agents.dreamer.api.train_step"]
-    assert module_exists("vsgjax.config.presets.make_config")  # a module's function
+    assert module_exists("vsgjax.config.make.make_config")  # a module's function
     assert module_exists("vsgjax.config.make_config")  # a package's import
     assert module_exists("vsgjax.load")  # a lazy export of the package
     assert module_exists("experiments.launch")

@@ -21,12 +21,15 @@ Unknown names, unknown keys, values of the wrong type and values out of their ra
 The package: :mod:`~vsgjax.config.schema` (the shared dataclasses, the agents' config classes,
 overrides), :mod:`~vsgjax.config.saved` (the saved form, its versions, the comparison on
 resume), :mod:`~vsgjax.config.checks` (the valid ranges), :mod:`~vsgjax.config.presets` (the
-presets and :func:`make_config`). No module here imports an agent: an agent's sections,
-ranges, checks and presets live in its package and are found through its registry entry.
+presets and whether an agent fits a task), :mod:`~vsgjax.config.make` (:func:`make_config`:
+the names resolved once and their entries passed down). No module here imports an agent: an
+agent's sections, ranges, checks and presets live in its package and are found through its
+registry entry.
 """
 
 from vsgjax.config.checks import RANGES, check_config
-from vsgjax.config.presets import VECTOR_SIZES, make_config, preset_column
+from vsgjax.config.make import make_config
+from vsgjax.config.presets import VECTOR_SIZES, preset_column
 from vsgjax.config.saved import RESUMABLE_KEYS, config_changes, from_dict, migrate, to_dict
 from vsgjax.config.schema import (
     BACKGROUNDS,

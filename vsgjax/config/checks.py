@@ -1,7 +1,7 @@
 """The valid values of a built config: a range for every numeric key, and the checks between
 keys and against the task (a sequence must fit in an episode of the task).
 
-:func:`check_config` runs at the end of :func:`~vsgjax.config.presets.make_config`, so a bad
+:func:`check_config` runs at the end of :func:`~vsgjax.config.make.make_config`, so a bad
 value stops a run before it writes anything; the error names the key, the value and what is
 valid.
 ``train.devices`` is checked against the devices JAX sees when training starts
@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from vsgjax.config.schema import Config, ConfigError, EnvConfig, settings_of
+from vsgjax.config.schema import Config, ConfigError, EnvConfig
 from vsgjax.registry import resolve
-from vsgjax.registry.tasks import FAMILIES, family_of
+from vsgjax.registry.tasks import FAMILIES, TaskFamily, family_of
 
 # Seeds up to 2**30 leave room below 2**31 for the evaluation envs' offset and the env index.
 MAX_SEED = 2**30
@@ -72,19 +72,21 @@ ATARI_OPTIONS = ("env.grayscale", "env.sticky")
 BACKGROUND_OPTIONS = ("env.background", "env.background_dir")
 
 
-def check_config(config: Config) -> None:
+def check_config(config: Config, family: TaskFamily | None = None) -> None:
     """Raise ConfigError for the first value out of its range or in conflict with the task,
-    then run the agent's own checks (its settings module's ``check``)."""
-    settings = settings_of(config.agent)
+    then run the agent's own checks (its settings module's ``check``). ``family``: the task's
+    family where the caller has resolved it (default: looked up from ``config.env.task``)."""
+    family = family_of(config.env.task) if family is None else family
+    settings = type(config).settings
     ranges = {**RANGES, **settings.RANGES}
     for key, value in numeric_values(config).items():
         if key in ranges and value not in ranges[key]:
             finite = "" if math.isfinite(value) else ", which is not a finite number"
             raise ConfigError(f"config key {key!r} got {value!r}{finite}; valid: {ranges[key]}")
-    _check_sequences(config)
-    _check_atari_options(config)
-    _check_family_options(config)
-    _check_background_options(config)
+    _check_sequences(config, family)
+    _check_atari_options(config, family)
+    _check_background_options(config, family)
+    _check_family_options(config, family)
     if hasattr(settings, "check"):
         settings.check(config)
 
@@ -110,15 +112,16 @@ def max_episode_steps(config: Config) -> int:
     family's ``extra_steps``); the other families after ``time_limit`` env steps (DeepMind
     Control may end sooner, at its own limit); an agent step is ``action_repeat`` of them.
     """
-    env = config.env
-    env_steps = env.time_limit + family_of(env.task).extra_steps
-    return math.ceil(env_steps / env.action_repeat) + 1
+    return _episode_steps(config.env, family_of(config.env.task))
 
 
-def _check_sequences(config: Config) -> None:
-    train, steps = config.train, max_episode_steps(config)
-    crosses = family_of(config.env.task).windows_cross_episodes  # the family checks its own
-    if train.length > steps and not crosses:
+def _episode_steps(env: EnvConfig, family: TaskFamily) -> int:
+    return math.ceil((env.time_limit + family.extra_steps) / env.action_repeat) + 1
+
+
+def _check_sequences(config: Config, family: TaskFamily) -> None:
+    train, steps = config.train, _episode_steps(config.env, family)
+    if train.length > steps and not family.windows_cross_episodes:  # the family checks its own
         raise ConfigError(
             f"train.length={train.length} is longer than an episode of {config.env.task} can be "
             f"({steps} stored steps with env.time_limit={config.env.time_limit} and "
@@ -134,8 +137,8 @@ def _check_sequences(config: Config) -> None:
                           f"train.batch <= {most}")
 
 
-def _check_atari_options(config: Config) -> None:
-    if family_of(config.env.task).grayscale_sticky:
+def _check_atari_options(config: Config, family: TaskFamily) -> None:
+    if family.grayscale_sticky:
         return
     for key in ATARI_OPTIONS:
         section, name = key.split(".")
@@ -146,11 +149,10 @@ def _check_atari_options(config: Config) -> None:
                               f"{config.env.task!r}: {key}={off}")
 
 
-def _check_family_options(config: Config) -> None:
+def _check_family_options(config: Config, family: TaskFamily) -> None:
     """A family's own options (its ``options``) keep their defaults on every other family's
     tasks; then the task's family checks its options (its ``check``)."""
     env, defaults = config.env, EnvConfig()
-    family = family_of(env.task)
     for owner in FAMILIES.values():
         if owner is family:
             continue
@@ -164,12 +166,11 @@ def _check_family_options(config: Config) -> None:
         resolve(family.check)(config)
 
 
-def _check_background_options(config: Config) -> None:
+def _check_background_options(config: Config, family: TaskFamily) -> None:
     """The backgrounds are DMC's; ``video`` needs ``env.background_dir`` (whether it holds two
     videos or more is checked where the env is built, and by ``vsgjax.train`` first, which also
     decodes the first frame of every one: :func:`vsgjax.envs.backgrounds.check_videos`)."""
     env, defaults = config.env, EnvConfig()
-    family = family_of(env.task)
     if not family.backgrounds:
         for key in BACKGROUND_OPTIONS:
             name = key.partition(".")[2]

@@ -1,5 +1,6 @@
-""":func:`make_config`: the presets of a task's column, an agent and a size, then overrides,
-then every value checked.
+"""The presets of a run config: the layers of a task's column, an agent and a size, and the
+checks that the agent fits the task and reads the keys given (:func:`~vsgjax.config.make.
+make_config` applies them).
 
 The preset tables live with their agents (``vsgjax/agents/<family>/presets.py``: ``COLUMN`` and
 ``SIZE``) and in the agent registry (:mod:`vsgjax.registry.agents`: what differs between the
@@ -12,26 +13,10 @@ from __future__ import annotations
 import importlib
 from collections.abc import Sequence
 
-from vsgjax.config.checks import check_config
-from vsgjax.config.schema import (
-    SIZES,
-    Config,
-    ConfigError,
-    EnvConfig,
-    apply_values,
-    config_class,
-    parse_overrides,
-)
-from vsgjax.registry.agents import AGENTS, DEFAULT_MODEL, MODELS, AgentEntry
+from vsgjax.config.schema import SIZES, ConfigError
+from vsgjax.registry.agents import AGENTS, AgentEntry
 from vsgjax.registry.names import did_you_mean
-from vsgjax.registry.tasks import (
-    DEFAULT_TASK,
-    FAMILIES,
-    VECTOR,
-    TaskError,
-    TaskFamily,
-    family_of,
-)
+from vsgjax.registry.tasks import FAMILIES, VECTOR, TaskError, TaskFamily, family_of
 
 VECTOR_SIZES = ("cpu",)  # sizes with only an MLP encoder: tasks with vector observations
 
@@ -59,10 +44,10 @@ def preset_layers(entry: AgentEntry, family: TaskFamily, task: str, size: str) -
             for_task(task.partition("_")[2]), tables.SIZE[size], entry.by_size.get(size, {})]
 
 
-def _check_name(kind: str, value: str, valid: Sequence[str]) -> None:
-    if value not in valid:
-        raise ConfigError(f"unknown {kind} {value!r}{did_you_mean(value, valid)}; valid: "
-                          f"{', '.join(valid)}")
+def check_size(size: str) -> None:
+    if size not in SIZES:
+        raise ConfigError(f"unknown size {size!r}{did_you_mean(size, SIZES)}; valid: "
+                          f"{', '.join(SIZES)}")
 
 
 def check_agent_fits(entry: AgentEntry, family: TaskFamily, task: str, size: str) -> None:
@@ -91,39 +76,17 @@ def _models_for(family: TaskFamily) -> list[str]:
 
 
 def check_keys_for(entry: AgentEntry, keys: Sequence[str]) -> None:
-    """Every override key is one the agent reads; ConfigError naming the key, the model and
-    the models that read it."""
+    """Every override key is one the agent reads, and none is ``env.task`` (the task argument,
+    which picks the presets); ConfigError naming the key, the model and the models that read
+    it."""
     for key in keys:
+        if key == "env.task":
+            raise ConfigError("config key 'env.task' is the task argument (--task), which "
+                              "picks the task's presets; give the task there, not as an "
+                              "override")
         readers = [name for name, other in AGENTS.items() if other.takes(key)]
         if readers and not entry.takes(key):  # a key no agent reads is the schema's to refuse
             raise ConfigError(
                 f"config key {key!r} is not read by model {entry.name!r} ({entry.display}); "
                 f"read by {', '.join(readers)}; its keys: "
                 f"{', '.join(f'{s}.*' for s in entry.sections)}, env.*, train.*, model.precision")
-
-
-def make_config(
-    task: str = DEFAULT_TASK,
-    model: str = DEFAULT_MODEL,
-    size: str = "paper",
-    overrides: Sequence[str] = (),
-) -> Config:
-    """Resolve presets for (task's column, model, size), then apply ``key=value`` overrides;
-    every value is checked (:mod:`vsgjax.config.checks`). The model and the task are resolved
-    here, once, and their registry entries passed down."""
-    try:
-        family = family_of(task)
-    except TaskError as error:
-        raise ConfigError(str(error)) from None
-    _check_name("model", model, MODELS)
-    _check_name("size", size, SIZES)
-    entry = AGENTS[model]
-    check_agent_fits(entry, family, task, size)
-    config = config_class(model)(domain=family.preset_column, size=size,
-                                 env=EnvConfig(task=task))
-    for preset in preset_layers(entry, family, task, size):
-        config = apply_values(config, preset)
-    check_keys_for(entry, [item.partition("=")[0].strip() for item in overrides if "=" in item])
-    config = apply_values(config, parse_overrides(overrides, type(config)))
-    check_config(config)
-    return config

@@ -10,7 +10,6 @@ for DrQ-v2). The saved form is :mod:`vsgjax.config.saved`'s.
 
 from __future__ import annotations
 
-import functools
 import importlib
 import math
 import types
@@ -18,7 +17,7 @@ import typing
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields, is_dataclass, make_dataclass, replace
 
-from vsgjax.registry.agents import DEFAULT_MODEL, agent_entry
+from vsgjax.registry.agents import DEFAULT_MODEL, AgentEntry, agent_entry
 from vsgjax.registry.names import did_you_mean
 from vsgjax.registry.tasks import DEFAULT_TASK, family_of
 
@@ -102,7 +101,7 @@ class Config:
     train: TrainConfig = field(default_factory=TrainConfig)
 
     def __post_init__(self):
-        if type(self) is not config_class(self.agent):
+        if type(self) is not _CLASSES.get(self.agent):
             raise ConfigError(f"a config of agent {self.agent!r} is built by "
                               f"config_class({self.agent!r}) (or default_config), not "
                               f"{type(self).__qualname__}")
@@ -124,26 +123,37 @@ SHARED_SECTIONS = {"env": EnvConfig, "train": TrainConfig}
 def settings_of(agent: str) -> types.ModuleType:
     """The settings module of an agent (its registry entry's ``settings``): ``SECTIONS``
     (name -> dataclass), ``RANGES``, and optionally ``CHOICES`` and ``check(config)``."""
+    return config_class(agent).settings
+
+
+def config_class(agent: str) -> type[Config]:
+    """The run config class of an agent, by its ``--model`` name (:func:`class_for_entry`)."""
     try:
         entry = agent_entry(agent)
     except ValueError as error:
         raise ConfigError(str(error)) from None
-    return importlib.import_module(entry.settings)
+    return class_for_entry(entry)
 
 
-@functools.cache
-def config_class(agent: str) -> type[Config]:
-    """The run config class of an agent: :class:`Config` and the sections its registry entry
-    reads, from its settings module (built once per agent, so that equal configs hash equal)."""
-    tables, entry = settings_of(agent), agent_entry(agent)
-    missing = [name for name in entry.sections if name not in tables.SECTIONS]
-    if missing:
-        raise ConfigError(f"model {agent!r} reads sections {missing} that its settings module "
-                          f"{entry.settings} lacks; valid: {', '.join(tables.SECTIONS)}")
-    own = [(name, tables.SECTIONS[name], field(default_factory=tables.SECTIONS[name]))
-           for name in entry.sections]
-    return make_dataclass(f"Config[{agent}]", [("agent", str, field(default=agent)), *own],
-                          bases=(Config,), frozen=True)
+_CLASSES: dict[str, type[Config]] = {}  # built once per agent, so that equal configs hash equal
+
+
+def class_for_entry(entry: AgentEntry) -> type[Config]:
+    """The run config class of an agent's registry entry: :class:`Config` and the sections the
+    entry reads, from its settings module, which the class keeps as ``settings``."""
+    if entry.name not in _CLASSES:
+        tables = importlib.import_module(entry.settings)
+        missing = [name for name in entry.sections if name not in tables.SECTIONS]
+        if missing:
+            raise ConfigError(f"model {entry.name!r} reads sections {missing} that its settings "
+                              f"module {entry.settings} lacks; valid: "
+                              f"{', '.join(tables.SECTIONS)}")
+        own = [(name, tables.SECTIONS[name], field(default_factory=tables.SECTIONS[name]))
+               for name in entry.sections]
+        _CLASSES[entry.name] = make_dataclass(
+            f"Config[{entry.name}]", [("agent", str, field(default=entry.name)), *own],
+            bases=(Config,), frozen=True, namespace={"settings": tables})
+    return _CLASSES[entry.name]
 
 
 def default_config(agent: str = DEFAULT_MODEL, **top) -> Config:
@@ -160,9 +170,8 @@ def sections_of(config_type: type[Config]) -> dict[str, type]:
 
 
 def choices_of(config_type: type[Config]) -> dict[str, tuple[str, ...]]:
-    """The fixed-list string keys of a config class: every agent's and its agent's own."""
-    agent = config_type.__dataclass_fields__["agent"].default
-    return {**CHOICES, **getattr(settings_of(agent), "CHOICES", {})}
+    """The fixed-list string keys of an agent's config class: every agent's and its own."""
+    return {**CHOICES, **getattr(config_type.settings, "CHOICES", {})}
 
 
 def parse_overrides(overrides: Sequence[str], config_type: type[Config]) -> dict:
@@ -178,7 +187,7 @@ def parse_overrides(overrides: Sequence[str], config_type: type[Config]) -> dict
             raise ConfigError(f"config key {key!r} is given twice ({given[key]!r} and "
                               f"{item!r}); give it once")
         given[key] = item
-        values[key] = _parse(key, text.strip(), _field_type(key, config_type))
+        values[key] = _parse(key, text.strip(), _split_key(key, config_type)[2])
     return values
 
 
@@ -191,8 +200,8 @@ def apply_values(config: Config, values: dict) -> Config:
     """Apply a dict of dotted keys to typed values, checking every key and type."""
     choices = choices_of(type(config))
     for key, value in values.items():
-        section, name = _split_key(key, type(config))
-        value = _coerce(key, value, _field_type(key, type(config)))
+        section, name, kind = _split_key(key, type(config))
+        value = _coerce(key, value, kind)
         listed = choices.get(name if section is None else key)
         if listed and value not in listed:
             raise ConfigError(f"config key {key!r} got {value!r}; valid: {', '.join(listed)}")
@@ -204,11 +213,12 @@ def apply_values(config: Config, values: dict) -> Config:
     return config
 
 
-def _split_key(key: str, config_type: type[Config]) -> tuple[str | None, str]:
-    """``(section, field)`` of a dotted key; ``(None, field)`` for a top-level field set
-    under a dotted key (:data:`DOTTED_FIELDS`)."""
+def _split_key(key: str, config_type: type[Config]) -> tuple[str | None, str, type]:
+    """``(section, field, the field's type)`` of a dotted key; ``(None, field, type)`` for a
+    top-level field set under a dotted key (:data:`DOTTED_FIELDS`)."""
     if key in DOTTED_FIELDS:
-        return None, DOTTED_FIELDS[key]
+        name = DOTTED_FIELDS[key]
+        return None, name, typing.get_type_hints(Config)[name]
     sections = sections_of(config_type)
     section, sep, name = key.partition(".")
     if not sep or section not in sections:
@@ -219,14 +229,7 @@ def _split_key(key: str, config_type: type[Config]) -> tuple[str | None, str]:
         hint = did_you_mean(name, valid).replace("'", f"'{section}.", 1)
         raise ConfigError(f"unknown config key {key!r}{hint}; valid keys of {section!r}: "
                           f"{', '.join(valid)}")
-    return section, name
-
-
-def _field_type(key: str, config_type: type[Config]) -> type:
-    section, name = _split_key(key, config_type)
-    if section is None:
-        return typing.get_type_hints(Config)[name]
-    return typing.get_type_hints(sections_of(config_type)[section])[name]
+    return section, name, typing.get_type_hints(sections[section])[name]
 
 
 def _parse(key: str, text: str, kind: type):
