@@ -18,7 +18,9 @@ A run's memory length is its config's ``env.memory_length``; its series is its m
 * the gates (VSG and the other gated models): the last ``gates/*`` line of ``metrics.jsonl``:
   the open rate, the closed runs' 90th percentile and max against the geometric null of the same
   open rate, the units held closed across the gap (``gates/holding_<L>``) against independent
-  gates, and the gate probability at the cue step against the other steps.
+  gates, and the gate probability at the cue step against the other steps; the same over the
+  live units only (those that opened in the logged batch: a dead unit looks held), where the
+  run logged them.
 
 The published points (``published``: a file of ``experiments/reference_scores/``, ``{"source",
 "records": [{"method", "xs": lengths, "ys": success}]}``) are drawn as they are.
@@ -42,7 +44,14 @@ from vsgjax.loop.rundir import METRICS_FILE
 
 BSUITE_EPISODES = 10_000  # bsuite's sweep: training episodes per memory length
 GATE_KEYS = ("open", "closed_run_p90", "null_run_p90", "closed_run_max", "null_run_max",
-             "prob_step1", "prob_other_steps")
+             "prob_step1", "prob_other_steps", "live_units", "open_live", "live_prob_step1",
+             "live_prob_other_steps")
+
+
+def gap_keys(length: int) -> tuple[str, ...]:
+    """The gate keys of a memory gap of ``length`` steps."""
+    return (f"holding_{length}", f"null_holding_{length}", f"live_holding_{length}",
+            f"live_null_holding_{length}")
 
 
 @dataclass
@@ -117,7 +126,7 @@ def read_run(context: Context, run: Run) -> tuple[SeedResult, object] | None:
     gates = {}
     if gate_lines:
         last = gate_lines[-1]
-        keys = (*GATE_KEYS, f"holding_{length}", f"null_holding_{length}")
+        keys = (*GATE_KEYS, *gap_keys(length))
         gates = {key: float(last[f"gates/{key}"]) for key in keys
                  if is_number(last.get(f"gates/{key}"))}
     frame = training_frame(returns, length)
@@ -232,19 +241,30 @@ def gates_markdown(data: MemoryLenData) -> list[str]:
         return []
     rows = [["series", "L", "open", "closed run p90 (null)", "max (null)",
              "held across L (null)", "p(gate) cue step / others"]]
+    live = [["series", "L", "live units", "open (live)", "held across L (null)",
+             "p(gate) cue step / others"]]
     for name in data.series:
         for L in data.lengths:
             runs = [r for r in data.of(name, L) if r.gates]
             if not runs:
                 continue
             m = {key: mean_std([r.gates.get(key, np.nan) for r in runs])[0]
-                 for key in {*GATE_KEYS, f"holding_{L}", f"null_holding_{L}"}}
+                 for key in (*GATE_KEYS, *gap_keys(L))}
             rows.append([name, str(L), fmt(m["open"]),
                          f"{fmt(m['closed_run_p90'], 1)} ({fmt(m['null_run_p90'], 1)})",
                          f"{fmt(m['closed_run_max'], 0)} ({fmt(m['null_run_max'], 0)})",
                          f"{fmt(m[f'holding_{L}'], 3)} ({fmt(m[f'null_holding_{L}'], 3)})",
                          f"{fmt(m['prob_step1'])} / {fmt(m['prob_other_steps'])}"])
+            live.append([name, str(L), fmt(m["live_units"]), fmt(m["open_live"]),
+                         f"{fmt(m[f'live_holding_{L}'], 3)} "
+                         f"({fmt(m[f'live_null_holding_{L}'], 3)})",
+                         f"{fmt(m['live_prob_step1'])} / {fmt(m['live_prob_other_steps'])}"])
     return ["Gate statistics at the last log (mean over seeds): gates that hold show closed "
             "runs far above the geometric null, units held across the gap above independent "
             "gates', and a gate probability at the cue step unlike the others'.", "",
-            markdown_table(rows), ""]
+            markdown_table(rows), "",
+            "The live units only (those whose gate opened in the logged batch; a unit that "
+            "never opens keeps its initial value and counts as held): their fraction, their "
+            "open rate, the live units held across L against independent gates at that rate, "
+            "and their gate probability at the cue step against the others (— where the runs "
+            "predate these statistics).", "", markdown_table(live), ""]

@@ -15,12 +15,15 @@ SUMMARY_KEYS = {"gates/open", "gates/open_prior", "gates/prob_post", "gates/prob
                 "gates/open_per_unit_std", "gates/never_open", "gates/always_open",
                 "gates/closed_run_mean", "gates/closed_run_p90", "gates/closed_run_max",
                 "gates/null_run_mean", "gates/null_run_p90", "gates/null_run_max",
-                "gates/steps_any_open", "gates/units_ever_open"}
+                "gates/steps_any_open", "gates/units_ever_open", "gates/live_units",
+                "gates/open_live"}
 RUN_KEYS = {"gates/closed_run_mean", "gates/closed_run_p90", "gates/closed_run_max",
             "gates/null_run_mean", "gates/null_run_p90", "gates/null_run_max"}
 HOLDING_KEYS = {f"gates/{name}_{gap}" for gap in HOLDING_GAPS  # those the window fits
-                for name in ("holding", "null_holding")}
-CUE_KEYS = {"gates/prob_step1", "gates/prob_other_steps"}  # where the batch shows episode starts
+                for name in ("holding", "null_holding", "live_holding", "live_null_holding")}
+# where the batch shows episode starts (the live ones: and some unit opens)
+CUE_KEYS = {f"gates/{live}{name}" for live in ("", "live_")
+            for name in ("prob_step1", "prob_other_steps")}
 
 
 def gate_lines(logdir: Path) -> list[dict]:
@@ -35,7 +38,7 @@ def check_lines(lines: list[dict], final_step: int, first_step: int) -> None:
     assert steps[0] == first_step and steps[-1] == final_step and steps == sorted(set(steps))
     for line in lines:
         assert set(line) - HOLDING_KEYS - CUE_KEYS == {"step", *SUMMARY_KEYS}
-        assert len(CUE_KEYS & set(line)) in (0, 2)
+        assert len(CUE_KEYS & set(line)) in (0, 2, 4)
         assert {"gates/holding_5", "gates/null_holding_5"} <= set(line)
         fractions = [v for k, v in line.items() if k not in {"step", "gates/kl", *RUN_KEYS}]
         assert all(0.0 <= v <= 1.0 for v in fractions), line

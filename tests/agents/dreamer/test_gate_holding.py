@@ -183,3 +183,32 @@ def test_the_null_holding_is_the_chance_that_independent_gates_stay_closed_for_t
     summary = hand_made(gate, first).summary(gaps=[10])
     assert summary["gates/null_holding_10"] == pytest.approx(null_holding(
         summary["gates/open"], 10, 32))
+
+
+def test_dead_units_are_left_out_of_the_live_statistics():
+    """Four units over 12 steps of 4 sequences: two never open (dead: closed at every step,
+    so they look held); unit 2 opens at step 1 of each episode only and holds for the other
+    10 steps; unit 3 opens at every step. The whole population holds a 10-step gap at 3 of 4
+    units' rate, the live units at half; the cue probability of the live units is theirs."""
+    gate = np.zeros((4, 12, 4))
+    gate[:, 1, 2] = 1.0
+    gate[:, :, 3] = 1.0
+    prob = np.where(gate > 0, 0.8, 0.05)
+    first = np.zeros((4, 12), bool)
+    first[:, 0] = True
+    stats = hand_made(gate, first, prob)
+    np.testing.assert_array_equal(stats.live, [False, False, True, True])
+    assert float(stats.holding(10)) == pytest.approx(0.75)
+    assert float(stats.holding(10, live_only=True)) == pytest.approx(0.5)
+    assert float(stats.open_live()) == pytest.approx((1 + 12) / 24)
+    summary = stats.summary(gaps=[10])
+    assert summary["gates/live_units"] == 0.5
+    assert summary["gates/live_holding_10"] == pytest.approx(0.5)
+    assert summary["gates/live_null_holding_10"] == pytest.approx(
+        null_holding(13 / 24, 10, 12))
+    assert summary["gates/live_prob_step1"] == pytest.approx(0.8)  # both live units open
+    assert summary["gates/prob_step1"] == pytest.approx((0.8 * 2 + 0.05 * 2) / 4)
+    assert summary["gates/live_prob_other_steps"] == pytest.approx((0.05 * 10 + 0.8 * 10) / 20)
+    none_live = hand_made(np.zeros((2, 12, 3)), first[:2]).summary(gaps=[10])
+    assert none_live["gates/live_units"] == 0.0 and none_live["gates/live_holding_10"] == 0.0
+    assert "gates/live_prob_step1" not in none_live  # no live unit to average

@@ -5,6 +5,7 @@
     stats.open_per_unit, stats.kl_per_unit, stats.closed_runs    # arrays, shapes below
     stats.summary()                                              # {"gates/open": ..., ...}
     stats.holding(gap)               # fraction of units closed across gap steps
+    stats.holding(gap, live_only=True)  # of the units that ever opened (stats.live)
     stats.prob_at_step(1)            # gate probability at episode step 1, at the others
 
 ``batch`` holds ``[B, T, ...]`` arrays: the observation keys the params were built for,
@@ -103,12 +104,27 @@ class GateStatistics:
         """Gate KL summed over units, averaged over ``B, T`` (the ``gate_kl`` metric)."""
         return self.kl_per_unit.sum()
 
-    def holding(self, gap: int) -> jax.Array:
-        """Fraction of units (over ``B, D``) closed for at least ``gap`` consecutive steps of
-        one episode: units that kept a value across a memory gap of ``gap`` steps."""
+    @property
+    def live(self) -> jax.Array:
+        """``[D]``: units whose gate opened at least once in the batch. The others are dead:
+        they keep their initial value whatever comes, so they count as closed everywhere and
+        make any gap look held; the ``live`` statistics leave them out."""
+        return self.gate.max((0, 1)) > 0
+
+    def open_live(self) -> jax.Array:
+        """The open rate of the live units (0 when none is live)."""
+        steps = self.gate.shape[0] * self.gate.shape[1]
+        return (self.gate * self.live).sum() / jnp.maximum(self.live.sum() * steps, 1)
+
+    def holding(self, gap: int, live_only: bool = False) -> jax.Array:
+        """Fraction of units (over ``B, D``; only the :attr:`live` ones with ``live_only``, 0
+        when none is) closed for at least ``gap`` consecutive steps of one episode: units that
+        kept a value across a memory gap of ``gap`` steps."""
         if gap < 1:
             raise ValueError(f"a holding gap is a number of steps >= 1, got {gap}")
-        return (self.longest_closed >= gap).mean()
+        units = self.live if live_only else jnp.ones_like(self.live)
+        held = (self.longest_closed >= gap) * units
+        return held.sum() / jnp.maximum(units.sum() * held.shape[0], 1)
 
     def rates(self) -> dict[str, jax.Array]:
         """GateL0RD's three rates: the fraction of open ``(b, t, unit)`` entries, of steps
@@ -123,9 +139,10 @@ class GateStatistics:
         start = jax.lax.cummax(jnp.where(self.is_first, index, -1), axis=1)
         return jnp.where(start >= 0, index - start, -1)
 
-    def prob_at_step(self, step: int) -> tuple[jax.Array, jax.Array]:
+    def prob_at_step(self, step: int, live_only: bool = False) -> tuple[jax.Array, jax.Array]:
         """Mean posterior gate probability at episode step ``step`` and at the other steps of
-        known position (over ``B``, those steps and ``D``; NaN where there are none).
+        known position (over ``B``, those steps and ``D``, or the :attr:`live` units with
+        ``live_only``; NaN where there are none).
 
         The gate of step ``t`` is computed before observation ``t`` is seen (from the
         posterior of ``t - 1``): the gate that can store what step 0 shows is step 1's.
@@ -133,8 +150,9 @@ class GateStatistics:
         if step < 0:
             raise ValueError(f"an episode step is >= 0, got {step}")
         steps = self.episode_steps()[..., None]
-        at, other = steps == step, (steps >= 0) & (steps != step)
-        mean = lambda mask: (self.post_prob * mask).sum() / (mask.sum() * self.gate.shape[-1])
+        units = self.live if live_only else jnp.ones_like(self.live)
+        at, other = (steps == step) & units, (steps >= 0) & (steps != step) & units
+        mean = lambda mask: (self.post_prob * mask).sum() / mask.sum()
         return mean(at), mean(other)
 
     def closed_run_quantiles(self) -> dict[str, float]:
@@ -159,7 +177,9 @@ class GateStatistics:
         show) and a task's ``memory_gap`` if it fits; where the batch shows episode starts,
         the mean posterior gate probability at episode step 1 (the gate that can store what
         the first observation shows: MemoryChain's cue) and at the other steps,
-        ``gates/prob_step1`` and ``gates/prob_other_steps``."""
+        ``gates/prob_step1`` and ``gates/prob_other_steps``. The same over the :attr:`live`
+        units only, under ``gates/live_*`` (``gates/live_units`` their fraction,
+        ``gates/open_live`` their open rate, the null at that rate): dead units look held."""
         lengths = jnp.arange(1, self.closed_runs.shape[0] + 1)
         runs = self.closed_runs.sum()
         window = self.gate.shape[1]
@@ -188,13 +208,19 @@ class GateStatistics:
                     "gates/units_ever_open": rates["units_ever_open"]})
         out.update({f"gates/{key}": value for key, value in self.closed_run_quantiles().items()
                     if key != "closed_run_mean"})
-        cue, other = self.prob_at_step(1)
-        if jnp.isfinite(cue) and jnp.isfinite(other):  # the batch holds episode starts
-            out.update({"gates/prob_step1": cue, "gates/prob_other_steps": other})
+        live_rate = float(self.open_live())
+        out.update({"gates/live_units": self.live.mean(), "gates/open_live": live_rate})
+        for prefix, live_only in (("", False), ("live_", True)):
+            cue, other = self.prob_at_step(1, live_only)
+            if jnp.isfinite(cue) and jnp.isfinite(other):  # episode starts (and live units)
+                out.update({f"gates/{prefix}prob_step1": cue,
+                            f"gates/{prefix}prob_other_steps": other})
         open_rate = float(self.gate.mean())
         for gap in gaps:
             out[f"gates/holding_{gap}"] = self.holding(gap)
             out[f"gates/null_holding_{gap}"] = null_holding(open_rate, gap, window)
+            out[f"gates/live_holding_{gap}"] = self.holding(gap, live_only=True)
+            out[f"gates/live_null_holding_{gap}"] = null_holding(live_rate, gap, window)
         return {key: float(value) for key, value in out.items()}
 
 
