@@ -111,6 +111,10 @@ class GateStatistics:
         make any gap look held; the ``live`` statistics leave them out."""
         return self.gate.max((0, 1)) > 0
 
+    def _units(self, live_only: bool) -> jax.Array:
+        """``[D]``: the :attr:`live` units, or every unit."""
+        return self.live if live_only else jnp.ones(self.gate.shape[-1], bool)
+
     def open_live(self) -> jax.Array:
         """The open rate of the live units (0 when none is live)."""
         steps = self.gate.shape[0] * self.gate.shape[1]
@@ -122,7 +126,7 @@ class GateStatistics:
         kept a value across a memory gap of ``gap`` steps."""
         if gap < 1:
             raise ValueError(f"a holding gap is a number of steps >= 1, got {gap}")
-        units = self.live if live_only else jnp.ones_like(self.live)
+        units = self._units(live_only)
         held = (self.longest_closed >= gap) * units
         return held.sum() / jnp.maximum(units.sum() * held.shape[0], 1)
 
@@ -150,7 +154,7 @@ class GateStatistics:
         if step < 0:
             raise ValueError(f"an episode step is >= 0, got {step}")
         steps = self.episode_steps()[..., None]
-        units = self.live if live_only else jnp.ones_like(self.live)
+        units = self._units(live_only)
         at, other = (steps == step) & units, (steps >= 0) & (steps != step) & units
         mean = lambda mask: (self.post_prob * mask).sum() / mask.sum()
         return mean(at), mean(other)
