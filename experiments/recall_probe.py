@@ -17,6 +17,7 @@ held-out episodes (:mod:`vsgjax.agents.dreamer.gate_statistics`)::
 
     python -m experiments.recall_probe                                  # the default sweep
     python -m experiments.recall_probe --lengths 5,20 --variants dreamerv2,vsg:rate --seeds 0,1
+    python -m experiments.recall_probe --lengths 10 --variants vsg:rate@wm.gate_lambda=0.05
 
 One JSON record per (L, variant, seed) under ``--out``; existing records are kept (the sweep
 resumes), and ``report.md`` there holds the table printed at the end. docs/experiments.md,
@@ -66,23 +67,29 @@ def probe_models() -> tuple[str, ...]:
 
 @dataclasses.dataclass(frozen=True)
 class Variant:
-    """A model and, for a gated model, its gate objective (``None``: the model's preset)."""
+    """A model, for a gated model its gate objective (``None``: the model's preset), and config
+    overrides (``key=value``, e.g. ``wm.gate_lambda=0.05``)."""
 
     model: str
     objective: str | None = None
+    overrides: tuple[str, ...] = ()
 
     @classmethod
     def parse(cls, text: str) -> Variant:
-        """``model`` or ``model:objective``; the names are checked by :func:`probe_config`."""
-        model, _, objective = text.strip().partition(":")
-        if not model or ":" in objective or (_ and not objective):
-            raise ConfigError(f"variant {text!r}; valid: 'model' or 'model:objective', e.g. "
-                              f"{', '.join(DEFAULT_VARIANTS)}")
-        return cls(model, objective or None)
+        """``model[:objective][@key=value...]``; the names are checked by :func:`probe_config`."""
+        head, *overrides = text.strip().split("@")
+        model, _, objective = head.partition(":")
+        if (not model or ":" in objective or (_ and not objective)
+                or any(not o.partition("=")[0] or not o.partition("=")[2] for o in overrides)):
+            raise ConfigError(f"variant {text!r}; valid: 'model', 'model:objective', each "
+                              f"optionally followed by '@key=value' overrides, e.g. "
+                              f"{', '.join(DEFAULT_VARIANTS)}, vsg:rate@wm.gate_lambda=0.05")
+        return cls(model, objective or None, tuple(overrides))
 
     @property
     def name(self) -> str:
-        return self.model if self.objective is None else f"{self.model}:{self.objective}"
+        head = self.model if self.objective is None else f"{self.model}:{self.objective}"
+        return "@".join((head, *self.overrides))
 
 
 def probe_config(length: int, variant: Variant, seed: int, size: str = "cpu") -> Config:
@@ -96,7 +103,13 @@ def probe_config(length: int, variant: Variant, seed: int, size: str = "cpu") ->
                  f"train.seed={seed}"]
     if variant.objective is not None:
         overrides.append(f"wm.gate_objective={variant.objective}")
-    return vsgjax.make_config(TASK, variant.model, size, overrides)
+    own = {o.partition("=")[0] for o in overrides} | {"wm.gate_objective"}
+    for override in variant.overrides:
+        if override.partition("=")[0] in own:
+            raise ConfigError(f"variant {variant.name!r} overrides {override.partition('=')[0]}, "
+                              f"which the probe sets itself; valid: any other key (the length "
+                              f"is --lengths, the seed --seeds, the gate objective 'model:objective')")
+    return vsgjax.make_config(TASK, variant.model, size, [*overrides, *variant.overrides])
 
 
 @functools.partial(jax.jit, static_argnames=("task", "count"))
@@ -183,6 +196,7 @@ def run_probe(length: int, variant: Variant, seed: int, updates: int,
     record = {
         "task": TASK, "memory_length": length, "variant": variant.name, "model": variant.model,
         "gate_objective": config.wm.gate_objective if variant.model in gated_models() else None,
+        "overrides": list(variant.overrides),
         "seed": seed, "size": size, "updates": updates, "batch": config.train.batch,
         "sequence_length": config.train.length, "eval_episodes": eval_episodes,
         "observed_steps": OBSERVED_STEPS,
@@ -196,7 +210,8 @@ def run_probe(length: int, variant: Variant, seed: int, updates: int,
 
 
 def record_path(out: Path, length: int, variant: Variant, seed: int) -> Path:
-    return out / f"L{length}-{variant.name.replace(':', '-')}-s{seed}.json"
+    name = variant.name.replace(":", "-").replace("@", "-")
+    return out / f"L{length}-{name}-s{seed}.json"
 
 
 SETTINGS = ("updates", "eval_episodes", "size")  # a kept record must match these
@@ -299,7 +314,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--lengths", type=_ints, default=list(DEFAULT_LENGTHS),
                         help="memory lengths L (default %(default)s)")
     parser.add_argument("--variants", default=",".join(DEFAULT_VARIANTS),
-                        help="model[:gate objective], comma-separated (default %(default)s)")
+                        help="model[:gate objective][@key=value...], comma-separated "
+                             "(default %(default)s)")
     parser.add_argument("--seeds", type=_ints, default=[0], help="default %(default)s")
     parser.add_argument("--updates", type=int, default=DEFAULT_UPDATES,
                         help="world-model updates per probe (default %(default)s)")

@@ -90,7 +90,11 @@ def test_a_second_sweep_keeps_the_records(swept, monkeypatch):
     ([3], "vsg:sparse", "release, rate, rate_kl, gatel0rd"),
     ([3], "dreamerv2:rate", "has none"),
     ([3], "dreamerpro", "valid: .*dreamerv2"),
-    ([3], "vsg:", "'model' or 'model:objective'"),
+    ([3], "vsg:", "'model', 'model:objective'"),
+    ([3], "vsg:rate@wm.gate_lambda", "'@key=value' overrides"),
+    ([3], "vsg:rate@wm.gate_lambda=-1", "wm.gate_lambda"),
+    ([3], "vsg:rate@wm.gate_lamda=0.1", "did you mean 'wm.gate_lambda'"),
+    ([3], "vsg@train.seed=3", "the seed --seeds"),
 ])
 def test_bad_input_is_refused_before_anything_is_written(tmp_path, lengths, variant, message):
     out = tmp_path / "probe"
@@ -98,6 +102,18 @@ def test_bad_input_is_refused_before_anything_is_written(tmp_path, lengths, vari
         variants = [Variant.parse(variant)]
         recall_probe.sweep(lengths, variants, [0], UPDATES, EPISODES, out, SIZE)
     assert not out.exists()
+
+
+def test_a_variant_carries_its_overrides_into_the_config_and_the_record_name(tmp_path):
+    variant = Variant.parse("vsg:rate@wm.gate_lambda=0.05@wm.gate_noise=0.2")
+    assert variant == Variant("vsg", "rate", ("wm.gate_lambda=0.05", "wm.gate_noise=0.2"))
+    assert Variant.parse(variant.name) == variant
+    config = recall_probe.probe_config(LENGTH, variant, 0, SIZE)
+    assert (config.wm.gate_objective, config.wm.gate_lambda, config.wm.gate_noise) == \
+        ("rate", 0.05, 0.2)
+    path = recall_probe.record_path(tmp_path, LENGTH, variant, 0)
+    assert path.name == "L3-vsg-rate-wm.gate_lambda=0.05-wm.gate_noise=0.2-s0.json"
+    assert path != recall_probe.record_path(tmp_path, LENGTH, GATED, 0)
 
 
 def test_cli_names_the_bad_value(tmp_path, capsys):
