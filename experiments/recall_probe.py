@@ -20,7 +20,8 @@ held-out episodes (:mod:`vsgjax.agents.dreamer.gate_statistics`)::
     python -m experiments.recall_probe --lengths 10 --variants vsg:rate@wm.gate_lambda=0.05
 
 One JSON record per (L, variant, seed) under ``--out``; existing records are kept (the sweep
-resumes), and ``report.md`` there holds the table printed at the end. docs/experiments.md,
+resumes), and ``report.md`` there holds the table printed at the end: every record under
+``--out`` measured with the same settings, not only this sweep's. docs/experiments.md,
 "The recall probe", has what it measured.
 """
 
@@ -259,6 +260,16 @@ def sweep(lengths: Sequence[int], variants: Sequence[Variant], seeds: Sequence[i
     return records
 
 
+def all_records(out: Path, settings: dict) -> list[dict]:
+    """Every record under ``out`` measured with ``settings`` (:data:`SETTINGS`), ordered by L, then the
+    default variants in their order, then the others by name, then seed."""
+    records = [json.loads(path.read_text()) for path in out.glob("L*-s*.json")]
+    order = {name: i for i, name in enumerate(DEFAULT_VARIANTS)}
+    return sorted((r for r in records if all(r[k] == settings[k] for k in SETTINGS)),
+                  key=lambda r: (r["memory_length"], order.get(r["variant"], len(order)),
+                                 r["variant"], r["seed"]))
+
+
 def _cell(values: list[float | None], digits: int = 2) -> str:
     values = [v for v in values if v is not None]
     if not values:
@@ -326,11 +337,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         variants = [Variant.parse(v) for v in args.variants.split(",")]
-        records = sweep(args.lengths, variants, args.seeds, args.updates, args.eval_episodes,
-                        args.out, args.size)
+        sweep(args.lengths, variants, args.seeds, args.updates, args.eval_episodes, args.out,
+              args.size)
     except ConfigError as error:
         parser.error(str(error))
-    report = table(records)
+    settings = {"updates": args.updates, "eval_episodes": args.eval_episodes, "size": args.size}
+    report = table(all_records(args.out, settings))
     (args.out / "report.md").write_text(
         "# Recall probe\n\nAccuracy of the final reward's sign on held-out random-policy "
         f"episodes (chance 0.5); {args.updates} updates, {args.eval_episodes} episodes, size "

@@ -84,6 +84,20 @@ def test_a_second_sweep_keeps_the_records(swept, monkeypatch):
     assert "| 3 | vsg:rate | 1 |" in table
 
 
+def test_the_report_holds_every_record_with_the_same_settings(swept, tmp_path):
+    """Records of earlier sweeps with the same settings join the table, in the default
+    variants' order; one measured with other settings stays out."""
+    _, (record,) = swept
+    others = [{**record, "variant": "vsg:release", "seed": 1},
+              {**record, "variant": "dreamerv2", "seed": 0},
+              {**record, "variant": "vsg:rate", "seed": 0, "updates": UPDATES + 1}]
+    for i, other in enumerate([record, *others]):
+        (tmp_path / f"L{LENGTH}-{i}-s0.json").write_text(json.dumps(other))
+    settings = {"updates": UPDATES, "eval_episodes": EPISODES, "size": SIZE}
+    kept = recall_probe.all_records(tmp_path, settings)
+    assert [r["variant"] for r in kept] == ["dreamerv2", "vsg:release", "vsg:rate"]
+
+
 @pytest.mark.parametrize("lengths, variant, message", [
     ([0], "vsg", "env.memory_length"),
     ([3], "vsgg", "did you mean 'vsg'"),
