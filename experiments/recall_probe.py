@@ -164,18 +164,26 @@ def recall(config: Config, params: dict, batch: dict, key: jax.Array) -> dict:
 def gate_record(config: Config, params: dict, batch: dict, key: jax.Array) -> dict[str, float]:
     """Gate statistics of held-out episodes: open fraction, closed runs against the geometric
     null, units closed across the gap, and the gate probability at step 1 (the gate that can
-    store the cue shown at step 0) against the other steps."""
+    store the cue shown at step 0) against the other steps; the last two also over the live
+    units only (``live_*``: units that never open look held)."""
     stats = vsgjax.gate_statistics(params, batch, key, config=config)
     length = config.env.memory_length
     # The cue is shown at stored steps 0 and 1 and needed at step L + 1: a unit written at
     # step 2 (from step 1's posterior) holds it if it stays closed for the L - 1 steps after.
     gap = max(1, length - 1)
     open_rate = float(stats.gate.mean())
+    live_rate = float(stats.open_live())
+    window = stats.gate.shape[1]
     at_cue, elsewhere = stats.prob_at_step(1)
+    live_cue, live_elsewhere = stats.prob_at_step(1, live_only=True)
     out = {"open": open_rate, **{k: float(v) for k, v in stats.rates().items() if k != "open"},
            **stats.closed_run_quantiles(), "gap": gap, "holding": float(stats.holding(gap)),
-           "null_holding": null_holding(open_rate, gap, stats.gate.shape[1]),
-           "prob_step1": float(at_cue), "prob_other": float(elsewhere)}
+           "null_holding": null_holding(open_rate, gap, window),
+           "prob_step1": float(at_cue), "prob_other": float(elsewhere),
+           "live_units": float(stats.live.mean()), "open_live": live_rate,
+           "live_holding": float(stats.holding(gap, live_only=True)),
+           "live_null_holding": null_holding(live_rate, gap, window),
+           "live_prob_step1": float(live_cue), "live_prob_other": float(live_elsewhere)}
     return {k: (v if math.isfinite(v) else None) for k, v in out.items()}
 
 
@@ -282,7 +290,8 @@ def table(records: Sequence[dict]) -> str:
     """Markdown table: one row per (L, variant), means (± std over seeds)."""
     head = ("| L | variant | seeds | acc. filtered | acc. open loop | mean abs r̂ before last "
             "| open | closed run mean "
-            "(null) | closed run max (null) | holding L-1 (null) | p(step 1) / p(other) |")
+            "(null) | closed run max (null) | holding L-1 (null) | p(step 1) / p(other) "
+            "| live units | live: holding L-1 (null) | live: p(step 1) / p(other) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     groups: dict[tuple[int, str], list[dict]] = {}
     for r in records:
@@ -300,16 +309,19 @@ def table(records: Sequence[dict]) -> str:
 def _gate_cells(gates: Sequence[dict]) -> list[str]:
     """The gate columns of one table row ("-" for a gateless model)."""
     if not gates:
-        return ["-"] * 5
+        return ["-"] * 8
 
     def pick(key: str, digits: int = 2) -> str:
-        return _cell([g[key] for g in gates], digits)
+        return _cell([g.get(key) for g in gates], digits)  # records before live_* lack them
 
     return [pick("open"),
             f"{pick('closed_run_mean', 1)} ({pick('null_run_mean', 1)})",
             f"{pick('closed_run_max', 0)} ({pick('null_run_max', 0)})",
             f"{pick('holding')} ({pick('null_holding')})",
-            f"{pick('prob_step1')} / {pick('prob_other')}"]
+            f"{pick('prob_step1')} / {pick('prob_other')}",
+            pick("live_units"),
+            f"{pick('live_holding')} ({pick('live_null_holding')})",
+            f"{pick('live_prob_step1')} / {pick('live_prob_other')}"]
 
 
 def _ints(text: str) -> list[int]:

@@ -55,6 +55,9 @@ def test_record_fields_and_ranges(swept):
     assert 0.0 <= gates["holding"] <= 1.0 and 0.0 <= gates["null_holding"] <= 1.0
     assert 1 <= gates["closed_run_mean"] <= gates["closed_run_max"] <= LENGTH + 2
     assert 0.0 < gates["prob_step1"] < 1.0 and 0.0 < gates["prob_other"] < 1.0
+    assert 0.0 < gates["live_units"] <= 1.0 and gates["open"] <= gates["open_live"] + 1e-6 < 1.0
+    # held live units are a part of all held units (the dead ones count as held there)
+    assert 0.0 <= gates["live_holding"] * gates["live_units"] <= gates["holding"] + 1e-6
     assert "reward_loss" in record["final_metrics"]
 
 
