@@ -20,8 +20,9 @@ held-out episodes (:mod:`vsgjax.agents.dreamer.gate_statistics`)::
     python -m experiments.recall_probe --lengths 10 --variants vsg:rate@wm.gate_lambda=0.05
 
 One JSON record per (L, variant, seed) under ``--out``; existing records are kept (the sweep
-resumes), and ``report.md`` there holds the table printed at the end: every record under
-``--out`` measured with the same settings, not only this sweep's. docs/experiments.md,
+resumes), and ``report.md`` there holds the table printed at the end and ``accuracy.png`` the
+accuracy against L: every record under ``--out`` measured with the same settings, not only
+this sweep's. docs/experiments.md,
 "The recall probe", has what it measured.
 """
 
@@ -40,8 +41,11 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import matplotlib
+from matplotlib.figure import Figure
 
 import vsgjax
+from experiments.report.style import save_figure
 from vsgjax.agents.dreamer.api import world_model_for
 from vsgjax.agents.dreamer.gate_statistics import null_holding
 from vsgjax.config import Config, ConfigError
@@ -306,6 +310,28 @@ def table(records: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
+def draw_accuracy(records: Sequence[dict], stem: Path) -> list[Path]:
+    """Accuracy against L, one line per variant (mean ± std over seeds): filtered on the left,
+    open loop on the right; ``stem``.png and .pdf."""
+    figure = Figure(figsize=(11, 4.2), layout="constrained")
+    axes = figure.subplots(1, 2, sharey=True)
+    variants = list(dict.fromkeys(r["variant"] for r in records))
+    for ax, key, title in zip(axes, ("accuracy_filtered", "accuracy_open_loop"),
+                              ("filtered", f"open loop after {OBSERVED_STEPS} steps")):
+        for i, variant in enumerate(variants):
+            lengths = sorted({r["memory_length"] for r in records if r["variant"] == variant})
+            values = [[r[key] for r in records
+                       if r["variant"] == variant and r["memory_length"] == length]
+                      for length in lengths]
+            ax.errorbar(lengths, [np.mean(v) for v in values], yerr=[np.std(v) for v in values],
+                        marker="o", capsize=3, label=variant, color=matplotlib.colormaps["tab20"](i % 20))
+        ax.axhline(0.5, color="grey", lw=0.8, ls=":")
+        ax.set(xlabel="memory length L", title=title, ylim=(0.4, 1.02))
+    axes[0].set_ylabel("accuracy of the final reward's sign")
+    figure.legend(*axes[0].get_legend_handles_labels(), loc="outside right", fontsize=7)
+    return save_figure(figure, stem)
+
+
 def _gate_cells(gates: Sequence[dict]) -> list[str]:
     """The gate columns of one table row ("-" for a gateless model)."""
     if not gates:
@@ -354,12 +380,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as error:
         parser.error(str(error))
     settings = {"updates": args.updates, "eval_episodes": args.eval_episodes, "size": args.size}
-    report = table(all_records(args.out, settings))
+    records = all_records(args.out, settings)
+    report = table(records)
+    draw_accuracy(records, args.out / "accuracy")
     (args.out / "report.md").write_text(
         "# Recall probe\n\nAccuracy of the final reward's sign on held-out random-policy "
         f"episodes (chance 0.5); {args.updates} updates, {args.eval_episodes} episodes, size "
         f"{args.size}, open loop after {OBSERVED_STEPS} observed steps. "
-        "docs/experiments.md, \"The recall probe\", explains the columns.\n\n" + report + "\n")
+        "docs/experiments.md, \"The recall probe\", explains the columns.\n\n"
+        "![accuracy against L](accuracy.png)\n\n" + report + "\n")
     print(report)
     return 0
 

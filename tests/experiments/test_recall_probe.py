@@ -133,6 +133,20 @@ def test_a_variant_carries_its_overrides_into_the_config_and_the_record_name(tmp
     assert path != recall_probe.record_path(tmp_path, LENGTH, GATED, 0)
 
 
+def test_the_cli_writes_the_table_and_the_figure_of_every_kept_record(swept, tmp_path):
+    out, (record,) = swept
+    copy = tmp_path / "probe"
+    copy.mkdir()
+    for path in out.glob("*.json"):
+        (copy / path.name).write_text(path.read_text())
+    argv = ["--lengths", str(LENGTH), "--variants", GATED.name, "--updates", str(UPDATES),
+            "--eval-episodes", str(EPISODES), "--size", SIZE, "--out", str(copy)]
+    assert recall_probe.main(argv) == 0  # every record kept: nothing is trained
+    report = (copy / "report.md").read_text()
+    assert "| 3 | vsg:rate | 1 |" in report and "(accuracy.png)" in report
+    assert (copy / "accuracy.png").stat().st_size > 0
+
+
 def test_cli_names_the_bad_value(tmp_path, capsys):
     with pytest.raises(SystemExit):
         recall_probe.main(["--variants", "dreamerv2:gatel0rd", "--out", str(tmp_path / "p")])
