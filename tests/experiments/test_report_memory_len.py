@@ -45,18 +45,19 @@ def test_bsuite_scores_success_gates_and_missing_runs(tmp_path):
     write_run(runs_by(experiment, "VSG-gatel0rd-L10", 0), tmp_path, ep(60), 0.5, gates)
     live = {**gates, "live_units": 0.1, "open_live": 0.2, "live_holding_20": 0.5,
             "live_null_holding_20": 0.01, "live_prob_step1": 0.7, "live_prob_other_steps": 0.1}
-    write_run(runs_by(experiment, "VSG-gatel0rd-L20", 0), tmp_path, ep(50), 0.0, live)
+    write_run(runs_by(experiment, "VSG-gatel0rd-lambda0.1-L20", 0), tmp_path, ep(50), 0.0, live)
 
     data = memory_len_data(Context.create(experiment, tmp_path),
                            "bsuite_memory_len_published.json")
-    assert data.series == ["DreamerV2", "VSG", "VSG-gatel0rd"] and data.lengths == [10, 20, 30]
+    assert data.series == ["DreamerV2", "VSG", "VSG-gatel0rd", "VSG-gatel0rd-lambda0.1"]
+    assert data.lengths == [10, 20, 30]
     first = data.of("DreamerV2", 10)
     assert [r.regret_ratio for r in first] == pytest.approx([0.4, 0.0])
     assert [r.success for r in first] == pytest.approx([0.95, 1.0])
     assert [r.learned for r in first] == [True, True]
     assert not data.of("DreamerV2", 20)[0].learned
     assert data.scores == {"DreamerV2": [pytest.approx(1 / 3)]}  # seed 1 lacks L20, L30
-    assert len(data.missing) == 2 * 9 - 6
+    assert len(data.missing) == 2 * 10 - 6
     assert set(data.published) == {"DreamerV3", "R2I"}
 
     built = report.build_report(experiment, tmp_path, tmp_path / "out")
@@ -69,5 +70,6 @@ def test_bsuite_scores_success_gates_and_missing_runs(tmp_path):
         in section.markdown
     # the live units' table: the L = 10 run predates the live statistics
     assert "| VSG-gatel0rd | 10 | — | — | — (—) | — / — |" in section.markdown
-    assert "| VSG-gatel0rd | 20 | 0.10 | 0.20 | 0.500 (0.010) | 0.70 / 0.10 |" in section.markdown
+    assert "| VSG-gatel0rd-lambda0.1 | 20 | 0.10 | 0.20 | 0.500 (0.010) | 0.70 / 0.10 |" \
+        in section.markdown
     assert "a reduced budget" in section.markdown
