@@ -47,7 +47,7 @@ from matplotlib.figure import Figure
 import vsgjax
 from experiments.report.style import save_figure
 from vsgjax.agents.dreamer.api import world_model_for
-from vsgjax.agents.dreamer.gate_statistics import null_holding
+from vsgjax.agents.dreamer.gate_statistics import null_holding, null_written_and_held
 from vsgjax.config import Config, ConfigError
 from vsgjax.envs.gymnax_tasks import OBS_KEY, MemoryChainTask
 from vsgjax.registry.agents import MODELS, dreamer_models, gated_models, prototype_models
@@ -169,7 +169,8 @@ def gate_record(config: Config, params: dict, batch: dict, key: jax.Array) -> di
     """Gate statistics of held-out episodes: open fraction, closed runs against the geometric
     null, units closed across the gap, and the gate probability at step 1 (the gate that can
     store the cue shown at step 0) against the other steps; the last two also over the live
-    units only (``live_*``: units that never open look held)."""
+    units only (``live_*``: units that never open look held); the units written at step 1 or 2
+    and kept closed to the last step (``written_and_held``), against independent gates."""
     stats = vsgjax.gate_statistics(params, batch, key, config=config)
     length = config.env.memory_length
     # The cue is shown at stored steps 0 and 1 and needed at step L + 1: a unit written at
@@ -187,7 +188,9 @@ def gate_record(config: Config, params: dict, batch: dict, key: jax.Array) -> di
            "live_units": float(stats.live.mean()), "open_live": live_rate,
            "live_holding": float(stats.holding(gap, live_only=True)),
            "live_null_holding": null_holding(live_rate, gap, window),
-           "live_prob_step1": float(live_cue), "live_prob_other": float(live_elsewhere)}
+           "live_prob_step1": float(live_cue), "live_prob_other": float(live_elsewhere),
+           "written_and_held": float(stats.written_and_held(gap)),
+           "null_written_and_held": null_written_and_held(open_rate, gap)}
     return {k: (v if math.isfinite(v) else None) for k, v in out.items()}
 
 
@@ -295,7 +298,7 @@ def table(records: Sequence[dict]) -> str:
     head = ("| L | variant | seeds | acc. filtered | acc. open loop | mean abs r̂ before last "
             "| open | closed run mean "
             "(null) | closed run max (null) | holding L-1 (null) | p(step 1) / p(other) "
-            "| live units | live: holding L-1 (null) | live: p(step 1) / p(other) |")
+            "| live units | written at 1-2, held L-1 (null) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     groups: dict[tuple[int, str], list[dict]] = {}
     for r in records:
@@ -335,10 +338,10 @@ def draw_accuracy(records: Sequence[dict], stem: Path) -> list[Path]:
 def _gate_cells(gates: Sequence[dict]) -> list[str]:
     """The gate columns of one table row ("-" for a gateless model)."""
     if not gates:
-        return ["-"] * 8
+        return ["-"] * 7
 
     def pick(key: str, digits: int = 2) -> str:
-        return _cell([g.get(key) for g in gates], digits)  # records before live_* lack them
+        return _cell([g.get(key) for g in gates], digits)  # older records lack some keys
 
     return [pick("open"),
             f"{pick('closed_run_mean', 1)} ({pick('null_run_mean', 1)})",
@@ -346,8 +349,7 @@ def _gate_cells(gates: Sequence[dict]) -> list[str]:
             f"{pick('holding')} ({pick('null_holding')})",
             f"{pick('prob_step1')} / {pick('prob_other')}",
             pick("live_units"),
-            f"{pick('live_holding')} ({pick('live_null_holding')})",
-            f"{pick('live_prob_step1')} / {pick('live_prob_other')}"]
+            f"{pick('written_and_held', 3)} ({pick('null_written_and_held', 3)})"]
 
 
 def _ints(text: str) -> list[int]:

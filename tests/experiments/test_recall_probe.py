@@ -58,6 +58,9 @@ def test_record_fields_and_ranges(swept):
     assert 0.0 < gates["live_units"] <= 1.0 and gates["open"] <= gates["open_live"] + 1e-6 < 1.0
     # held live units are a part of all held units (the dead ones count as held there)
     assert 0.0 <= gates["live_holding"] * gates["live_units"] <= gates["holding"] + 1e-6
+    # written at steps 1-2 and closed to the end: a part of the units closed across the gap
+    assert 0.0 <= gates["written_and_held"] <= gates["holding"]
+    assert 0.0 < gates["null_written_and_held"] < gates["null_holding"]
     assert "reward_loss" in record["final_metrics"]
 
 

@@ -21,6 +21,7 @@ from vsgjax.agents.dreamer.gate_statistics import (
     geometric_null,
     longest_closed_runs,
     null_holding,
+    null_written_and_held,
 )
 from vsgjax.config import make_config
 
@@ -212,3 +213,36 @@ def test_dead_units_are_left_out_of_the_live_statistics():
     none_live = hand_made(np.zeros((2, 12, 3)), first[:2]).summary(gaps=[10])
     assert none_live["gates/live_units"] == 0.0 and none_live["gates/live_holding_10"] == 0.0
     assert "gates/live_prob_step1" not in none_live  # no live unit to average
+
+
+def test_a_unit_written_at_the_cue_and_kept_counts_and_a_dead_one_does_not():
+    """One episode of 8 steps, gap 4 (steps 3-6 closed after a write at step 1 or 2): unit 0
+    writes at step 1 and holds, unit 1 writes at step 2 and holds, unit 2 writes and opens again
+    at step 5, unit 3 never opens (it holds nothing, though :meth:`holding` counts it)."""
+    gate = np.zeros((1, 8, 4))
+    gate[0, 1, 0] = gate[0, 2, 1] = gate[0, 1, 2] = gate[0, 5, 2] = 1
+    first = np.zeros((1, 8), bool)
+    first[0, 0] = True
+    stats = hand_made(gate, first)
+    assert float(stats.written_and_held(4)) == pytest.approx(2 / 4)
+    assert float(stats.holding(4)) == pytest.approx(3 / 4)
+    assert math.isnan(float(stats.written_and_held(6)))  # steps 1 to 8 do not fit in 8 steps
+    # an episode start inside the gap: that episode is not counted
+    first[0, 4] = True
+    assert math.isnan(float(hand_made(gate, first).written_and_held(4)))
+    # a window that starts mid-episode and one with two whole episodes
+    gate2 = np.concatenate([gate, gate], 1)
+    first2 = np.zeros((1, 16), bool)
+    first2[0, [0, 8]] = True
+    assert float(hand_made(gate2, first2).written_and_held(4)) == pytest.approx(2 / 4)
+    assert math.isnan(float(hand_made(gate2[:, 3:], first2[:, 3:]).written_and_held(7)))
+
+
+def test_independent_gates_write_and_hold_as_the_null_says():
+    q, gap = 0.3, 5
+    gate = jax.random.bernoulli(jax.random.PRNGKey(0), q, (4000, gap + 3, 8))
+    first = np.zeros((4000, gap + 3), bool)
+    first[:, 0] = True
+    observed = float(hand_made(gate, first).written_and_held(gap))
+    assert observed == pytest.approx(null_written_and_held(q, gap), abs=0.005)
+    assert null_written_and_held(q, gap) == pytest.approx((1 - 0.7 ** 2) * 0.7 ** 5)

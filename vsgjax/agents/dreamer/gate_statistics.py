@@ -7,6 +7,7 @@
     stats.holding(gap)               # fraction of units closed across gap steps
     stats.holding(gap, live_only=True)  # of the units that ever opened (stats.live)
     stats.prob_at_step(1)            # gate probability at episode step 1, at the others
+    stats.written_and_held(gap)      # units written at steps 1-2 and closed for gap steps
 
 ``batch`` holds ``[B, T, ...]`` arrays: the observation keys the params were built for,
 ``action`` ``[B, T, A]`` and ``is_first`` ``[B, T]`` (other keys are ignored).
@@ -130,6 +131,30 @@ class GateStatistics:
         held = (self.longest_closed >= gap) * units
         return held.sum() / jnp.maximum(units.sum() * held.shape[0], 1)
 
+    def written_and_held(self, gap: int) -> jax.Array:
+        """Fraction of ``(episode, unit)`` pairs whose gate opened at episode step 1 or 2 and
+        then stayed closed for the ``gap`` steps after step 2: units that stored what steps 0
+        and 1 show (a MemoryChain cue; step ``t``'s gate reads the posterior of ``t - 1``) and
+        kept it. Over the episodes whose steps 1 to ``gap + 2`` all lie in the window; NaN when
+        none does. Unlike :meth:`holding`, a unit closed all along (dead, or holding its reset
+        value) does not count. Independent gates: :func:`null_written_and_held`."""
+        if gap < 1:
+            raise ValueError(f"a holding gap is a number of steps >= 1, got {gap}")
+        count = self.gate.shape[1] - gap - 1  # positions t of step 1 whose step gap + 2 fits
+        if count < 1:
+            return jnp.asarray(jnp.nan)
+        zero = jnp.zeros_like(self.gate[:, :1])
+        opened = jnp.concatenate([zero, jnp.cumsum(self.gate, 1)], 1)
+        starts = jnp.concatenate([zero[..., 0], jnp.cumsum(self.is_first, 1)], 1)
+        t = jnp.arange(count)
+        written = (self.gate[:, t] + self.gate[:, t + 1]) > 0
+        closed_after = opened[:, t + gap + 2] == opened[:, t + 2]
+        whole = (self.episode_steps()[:, t] == 1) & (starts[:, t + gap + 2] == starts[:, t + 1])
+        held = (written & closed_after & whole[..., None]).sum()
+        episodes = whole.sum()
+        return jnp.where(episodes > 0, held / jnp.maximum(episodes * self.gate.shape[-1], 1),
+                         jnp.nan)
+
     def rates(self) -> dict[str, jax.Array]:
         """GateL0RD's three rates: the fraction of open ``(b, t, unit)`` entries, of steps
         with any unit open, and of units opened at least once in a sequence."""
@@ -246,6 +271,13 @@ def null_holding(open_rate: float, gap: int, window: int) -> float:
         held += closed[-1]
         run = np.concatenate([[run.sum() * open_rate], closed[:-1]])
     return float(held)
+
+
+def null_written_and_held(open_rate: float, gap: int) -> float:
+    """:meth:`GateStatistics.written_and_held` of gates that open independently with
+    probability ``open_rate`` at each step: open at step 1 or 2, then closed ``gap`` steps."""
+    closed = 1.0 - open_rate
+    return float((1.0 - closed ** 2) * closed ** gap)
 
 
 def geometric_null(open_rate: float, runs: int, window: int) -> dict[str, float]:
