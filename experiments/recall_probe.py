@@ -40,14 +40,14 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import matplotlib
+import numpy as np
 from matplotlib.figure import Figure
 
 import vsgjax
 from experiments.report.style import save_figure
 from vsgjax.agents.dreamer.api import world_model_for
-from vsgjax.agents.dreamer.gate_statistics import null_holding, null_written_and_held
+from vsgjax.agents.dreamer.gate_statistics import null_written_and_held
 from vsgjax.config import Config, ConfigError
 from vsgjax.envs.gymnax_tasks import OBS_KEY, MemoryChainTask
 from vsgjax.registry.agents import MODELS, dreamer_models, gated_models, prototype_models
@@ -165,6 +165,19 @@ def recall(config: Config, params: dict, batch: dict, key: jax.Array) -> dict:
     }
 
 
+# A record's gate statistic -> its GateStatistics.summary key (``{gap}``: the cue's gap).
+RECORD_KEYS = {
+    "open": "open", "steps_any_open": "steps_any_open", "units_ever_open": "units_ever_open",
+    **{f"{kind}_run_{q}": f"{kind}_run_{q}" for kind in ("closed", "null")
+       for q in ("mean", "p90", "max")},
+    "holding": "holding_{gap}", "null_holding": "null_holding_{gap}",
+    "prob_step1": "prob_step1", "prob_other": "prob_other_steps",
+    "live_units": "live_units", "open_live": "open_live",
+    "live_holding": "live_holding_{gap}", "live_null_holding": "live_null_holding_{gap}",
+    "live_prob_step1": "live_prob_step1", "live_prob_other": "live_prob_other_steps",
+}
+
+
 def gate_record(config: Config, params: dict, batch: dict, key: jax.Array) -> dict[str, float]:
     """Gate statistics of held-out episodes: open fraction, closed runs against the geometric
     null, units closed across the gap, and the gate probability at step 1 (the gate that can
@@ -176,21 +189,11 @@ def gate_record(config: Config, params: dict, batch: dict, key: jax.Array) -> di
     # The cue is shown at stored steps 0 and 1 and needed at step L + 1: a unit written at
     # step 2 (from step 1's posterior) holds it if it stays closed for the L - 1 steps after.
     gap = max(1, length - 1)
-    open_rate = float(stats.gate.mean())
-    live_rate = float(stats.open_live())
-    window = stats.gate.shape[1]
-    at_cue, elsewhere = stats.prob_at_step(1)
-    live_cue, live_elsewhere = stats.prob_at_step(1, live_only=True)
-    out = {"open": open_rate, **{k: float(v) for k, v in stats.rates().items() if k != "open"},
-           **stats.closed_run_quantiles(), "gap": gap, "holding": float(stats.holding(gap)),
-           "null_holding": null_holding(open_rate, gap, window),
-           "prob_step1": float(at_cue), "prob_other": float(elsewhere),
-           "live_units": float(stats.live.mean()), "open_live": live_rate,
-           "live_holding": float(stats.holding(gap, live_only=True)),
-           "live_null_holding": null_holding(live_rate, gap, window),
-           "live_prob_step1": float(live_cue), "live_prob_other": float(live_elsewhere),
-           "written_and_held": float(stats.written_and_held(gap)),
-           "null_written_and_held": null_written_and_held(open_rate, gap)}
+    summary = stats.summary(gaps=[gap])
+    out = {name: summary.get(f"gates/{key}".format(gap=gap), math.nan)
+           for name, key in RECORD_KEYS.items()}
+    out.update({"gap": gap, "written_and_held": float(stats.written_and_held(gap)),
+                "null_written_and_held": null_written_and_held(out["open"], gap)})
     return {k: (v if math.isfinite(v) else None) for k, v in out.items()}
 
 
