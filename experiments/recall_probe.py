@@ -112,8 +112,9 @@ def probe_config(length: int, variant: Variant, seed: int, size: str = "cpu") ->
     for override in variant.overrides:
         if override.partition("=")[0] in own:
             raise ConfigError(f"variant {variant.name!r} overrides {override.partition('=')[0]}, "
-                              f"which the probe sets itself; valid: any other key (the length "
-                              f"is --lengths, the seed --seeds, the gate objective 'model:objective')")
+                              "which the probe sets itself; valid: any other key (the length "
+                              "is --lengths, the seed --seeds, the gate objective "
+                              "'model:objective')")
     return vsgjax.make_config(TASK, variant.model, size, [*overrides, *variant.overrides])
 
 
@@ -279,8 +280,8 @@ def sweep(lengths: Sequence[int], variants: Sequence[Variant], seeds: Sequence[i
 
 
 def all_records(out: Path, settings: dict) -> list[dict]:
-    """Every record under ``out`` measured with ``settings`` (:data:`SETTINGS`), ordered by L, then the
-    default variants in their order, then the others by name, then seed."""
+    """Every record under ``out`` measured with ``settings`` (:data:`SETTINGS`), ordered by L,
+    then the default variants in their order, then the others by name, then seed."""
     records = [json.loads(path.read_text()) for path in out.glob("L*-s*.json")]
     order = {name: i for i, name in enumerate(DEFAULT_VARIANTS)}
     return sorted((r for r in records if all(r[k] == settings[k] for k in SETTINGS)),
@@ -323,14 +324,16 @@ def draw_accuracy(records: Sequence[dict], stem: Path) -> list[Path]:
     axes = figure.subplots(1, 2, sharey=True)
     variants = list(dict.fromkeys(r["variant"] for r in records))
     for ax, key, title in zip(axes, ("accuracy_filtered", "accuracy_open_loop"),
-                              ("filtered", f"open loop after {OBSERVED_STEPS} steps")):
+                              ("filtered", f"open loop after {OBSERVED_STEPS} steps"),
+                              strict=True):
         for i, variant in enumerate(variants):
             lengths = sorted({r["memory_length"] for r in records if r["variant"] == variant})
             values = [[r[key] for r in records
                        if r["variant"] == variant and r["memory_length"] == length]
                       for length in lengths]
             ax.errorbar(lengths, [np.mean(v) for v in values], yerr=[np.std(v) for v in values],
-                        marker="o", capsize=3, label=variant, color=matplotlib.colormaps["tab20"](i % 20))
+                        marker="o", capsize=3, label=variant,
+                        color=matplotlib.colormaps["tab20"](i % 20))
         ax.axhline(0.5, color="grey", lw=0.8, ls=":")
         ax.set(xlabel="memory length L", title=title, ylim=(0.4, 1.02))
     axes[0].set_ylabel("accuracy of the final reward's sign")

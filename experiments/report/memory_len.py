@@ -18,9 +18,13 @@ A run's memory length is its config's ``env.memory_length``; its series is its m
 * the gates (VSG and the other gated models): the last ``gates/*`` line of ``metrics.jsonl``:
   the open rate, the closed runs' 90th percentile and max against the geometric null of the same
   open rate, the units held closed across the gap (``gates/holding_<L>``) against independent
-  gates, and the gate probability at the cue step against the other steps; the same over the
-  live units only (those that opened in the logged batch: a dead unit looks held), where the
-  run logged them.
+  gates, the units written at the cue and held to the query (``gates/written_and_held_<L>``),
+  and the gate probability at the cue step against the other steps; the same over the live
+  units only (those that opened in the logged batch: a dead unit looks held), where the run
+  logged them. The nulls are computed here from the logged open rates (:func:`episode_nulls`),
+  the same for every run whatever its logs hold: independent gates in windows of
+  ``train.length`` steps over back-to-back episodes of L + 2 stored steps (the reset's and
+  the L + 1 agent steps'), a window starting at any step of an episode.
 
 The published points (``published``: a file of ``experiments/reference_scores/``, ``{"source",
 "records": [{"method", "xs": lengths, "ys": success}]}``) are drawn as they are.
@@ -40,7 +44,16 @@ from experiments.report.context import Context
 from experiments.report.runs import is_number, read_jsonl, warn
 from experiments.report.style import colour, fmt, markdown_table, save_figure, write_missing_note
 from experiments.spec import Run
+from vsgjax.agents.dreamer.gate_statistics import (
+    expected_closed_runs,
+    geometric_null,
+    null_holding_in,
+    null_written_and_held,
+    window_segments,
+)
+from vsgjax.config import Config
 from vsgjax.loop.rundir import METRICS_FILE
+from vsgjax.registry.agents import agent_entry
 
 BSUITE_EPISODES = 10_000  # bsuite's sweep: training episodes per memory length
 GATE_KEYS = ("open", "closed_run_p90", "null_run_p90", "closed_run_max", "null_run_max",
@@ -51,7 +64,30 @@ GATE_KEYS = ("open", "closed_run_p90", "null_run_p90", "closed_run_max", "null_r
 def gap_keys(length: int) -> tuple[str, ...]:
     """The gate keys of a memory gap of ``length`` steps."""
     return (f"holding_{length}", f"null_holding_{length}", f"live_holding_{length}",
-            f"live_null_holding_{length}")
+            f"live_null_holding_{length}", f"written_and_held_{length}",
+            f"null_written_and_held_{length}")
+
+
+def episode_nulls(open_rate: float, live_rate: float | None, config: Config,
+                  length: int) -> dict[str, float]:
+    """The nulls of a gates line whose open rate (and live units' open rate) is given, for
+    independent gates in the run's training windows over MemoryChain episodes of L + 2 stored
+    steps (:func:`window_segments`): the closed runs' p90 and max (the batch's expected number
+    of runs: ``train.batch`` windows of every gated unit), the units held across L, and those
+    written at step 1 or 2 and held to step L + 1."""
+    rows = window_segments(length + 2, config.train.length)
+    segments = [s for row in rows for s in row]
+    units = (config.model.stoch if agent_entry(config.agent).option("dynamics") == "SVSG"
+             else config.model.deter)
+    runs = config.train.batch * units * expected_closed_runs(open_rate, segments) / len(rows)
+    null = geometric_null(open_rate, round(runs), segments)
+    out = {"null_run_p90": null["p90"], "null_run_max": null["max"],
+           f"null_holding_{length}": null_holding_in(open_rate, length, rows),
+           f"null_written_and_held_{length}": null_written_and_held(open_rate,
+                                                                    max(1, length - 1))}
+    if live_rate is not None:
+        out[f"live_null_holding_{length}"] = null_holding_in(live_rate, length, rows)
+    return out
 
 
 @dataclass
@@ -129,6 +165,9 @@ def read_run(context: Context, run: Run) -> tuple[SeedResult, object] | None:
         keys = (*GATE_KEYS, *gap_keys(length))
         gates = {key: float(last[f"gates/{key}"]) for key in keys
                  if is_number(last.get(f"gates/{key}"))}
+        if "open" in gates:
+            gates.update(episode_nulls(gates["open"], gates.get("open_live"), run.config(),
+                                       length))
     frame = training_frame(returns, length)
     wall = float(curve.wall[-1]) / 60 if curve.wall is not None else float("nan")
     result = SeedResult(series_of(run, length), length, run.seed, len(returns),
@@ -240,7 +279,8 @@ def gates_markdown(data: MemoryLenData) -> list[str]:
     if not gated:
         return []
     rows = [["series", "L", "open", "closed run p90 (null)", "max (null)",
-             "held across L (null)", "p(gate) cue step / others"]]
+             "held across L (null)", "written at the cue, held to L (null)",
+             "p(gate) cue step / others"]]
     live = [["series", "L", "live units", "open (live)", "held across L (null)",
              "p(gate) cue step / others"]]
     for name in data.series:
@@ -254,14 +294,20 @@ def gates_markdown(data: MemoryLenData) -> list[str]:
                          f"{fmt(m['closed_run_p90'], 1)} ({fmt(m['null_run_p90'], 1)})",
                          f"{fmt(m['closed_run_max'], 0)} ({fmt(m['null_run_max'], 0)})",
                          f"{fmt(m[f'holding_{L}'], 3)} ({fmt(m[f'null_holding_{L}'], 3)})",
+                         f"{fmt(m[f'written_and_held_{L}'], 3)} "
+                         f"({fmt(m[f'null_written_and_held_{L}'], 3)})",
                          f"{fmt(m['prob_step1'])} / {fmt(m['prob_other_steps'])}"])
             live.append([name, str(L), fmt(m["live_units"]), fmt(m["open_live"]),
                          f"{fmt(m[f'live_holding_{L}'], 3)} "
                          f"({fmt(m[f'live_null_holding_{L}'], 3)})",
                          f"{fmt(m['live_prob_step1'])} / {fmt(m['live_prob_other_steps'])}"])
     return ["Gate statistics at the last log (mean over seeds): gates that hold show closed "
-            "runs far above the geometric null, units held across the gap above independent "
-            "gates', and a gate probability at the cue step unlike the others'.", "",
+            "runs far above the geometric null, units held across the gap and units written "
+            "at the cue (episode step 1 or 2) and held to the query above independent gates', "
+            "and a gate probability at the cue step unlike the others'. Every null is that of "
+            "independent gates at the logged open rate in the training windows' episodes "
+            "(L + 2 stored steps each; episode starts cut runs); — where a run predates a "
+            "statistic.", "",
             markdown_table(rows), "",
             "The live units only (those whose gate opened in the logged batch; a unit that "
             "never opens keeps its initial value and counts as held): their fraction, their "

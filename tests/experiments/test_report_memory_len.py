@@ -13,6 +13,7 @@ from experiments import report
 from experiments.report import Context
 from experiments.report.memory_len import memory_len_data
 from experiments.spec import load_experiment
+from vsgjax.agents.dreamer.gate_statistics import null_holding, null_holding_in, window_segments
 
 
 def runs_by(experiment, method, seed):
@@ -39,12 +40,13 @@ def test_bsuite_scores_success_gates_and_missing_runs(tmp_path):
     write_run(runs_by(experiment, "DreamerV2-L20", 0), tmp_path, ep(50), 0.0)  # ratio 1.0
     write_run(runs_by(experiment, "DreamerV2-L30", 0), tmp_path, ep(0), -1.0)  # ratio 2.0
     write_run(runs_by(experiment, "DreamerV2-L10", 1), tmp_path, ep(100), 1.0)
-    gates = {"open": 0.4, "closed_run_p90": 3.0, "null_run_p90": 4.0, "closed_run_max": 9.0,
-             "null_run_max": 8.0, "holding_10": 0.25, "null_holding_10": 0.006,
-             "prob_step1": 0.9, "prob_other_steps": 0.1}
+    # the logged nulls are replaced by those of MemoryChain's episodes in the training windows
+    gates = {"open": 0.4, "closed_run_p90": 3.0, "null_run_p90": 99.0, "closed_run_max": 9.0,
+             "null_run_max": 99.0, "holding_10": 0.25, "null_holding_10": 0.9,
+             "prob_step1": 0.9, "prob_other_steps": 0.1, "written_and_held_10": 0.02}
     write_run(runs_by(experiment, "VSG-gatel0rd-L10", 0), tmp_path, ep(60), 0.5, gates)
-    live = {**gates, "live_units": 0.1, "open_live": 0.2, "live_holding_20": 0.5,
-            "live_null_holding_20": 0.01, "live_prob_step1": 0.7, "live_prob_other_steps": 0.1}
+    live = {**gates, "open": 0.1, "live_units": 0.1, "open_live": 0.2, "live_holding_20": 0.5,
+            "live_null_holding_20": 0.9, "live_prob_step1": 0.7, "live_prob_other_steps": 0.1}
     write_run(runs_by(experiment, "VSG-gatel0rd-lambda0.1-L20", 0), tmp_path, ep(50), 0.0, live)
 
     data = memory_len_data(Context.create(experiment, tmp_path),
@@ -66,10 +68,20 @@ def test_bsuite_scores_success_gates_and_missing_runs(tmp_path):
                                                "memory_len.md"]
     assert "| 10 | 0.97 ± 0.03 (2); learned 2/2 |" in section.markdown
     assert "| DreamerV2 | 0.33 | 0.33 |" in section.markdown
-    assert "| VSG-gatel0rd | 10 | 0.40 | 3.0 (4.0) | 9 (8) | 0.250 (0.006) | 0.90 / 0.10 |" \
-        in section.markdown
+    # open 0.4 in 12-step episodes: p90 5 (1 - 0.6^5 >= 0.9), the longest of the runs capped
+    # at an episode; 10 closed steps in one 12-step episode are rare (null_holding_in), and
+    # written at step 1 or 2, closed 9 steps: (1 - 0.6²) 0.6⁹
+    gated = data.of("VSG-gatel0rd", 10)[0].gates
+    assert gated["null_run_p90"] == 5.0 and gated["null_run_max"] == 12.0
+    rows = window_segments(12, 64)
+    assert gated["null_holding_10"] == pytest.approx(null_holding_in(0.4, 10, rows))
+    assert 0.02 < gated["null_holding_10"] < null_holding(0.4, 10, 64) / 2
+    assert gated["null_written_and_held_10"] == pytest.approx((1 - 0.6 ** 2) * 0.6 ** 9)
+    assert "| VSG-gatel0rd | 10 | 0.40 | 3.0 (5.0) | 9 (12) | 0.250 " \
+        f"({gated['null_holding_10']:.3f}) | 0.020 (0.006) | 0.90 / 0.10 |" in section.markdown
     # the live units' table: the L = 10 run predates the live statistics
     assert "| VSG-gatel0rd | 10 | — | — | — (—) | — / — |" in section.markdown
-    assert "| VSG-gatel0rd-lambda0.1 | 20 | 0.10 | 0.20 | 0.500 (0.010) | 0.70 / 0.10 |" \
-        in section.markdown
+    live_null = null_holding_in(0.2, 20, window_segments(22, 64))
+    assert f"| VSG-gatel0rd-lambda0.1 | 20 | 0.10 | 0.20 | 0.500 ({live_null:.3f}) | " \
+        "0.70 / 0.10 |" in section.markdown
     assert "a reduced budget" in section.markdown

@@ -17,11 +17,14 @@ from vsgjax.agents.dreamer.gate_statistics import (
     HOLDING_GAPS,
     GateStatistics,
     closed_run_lengths,
+    expected_closed_runs,
     gate_statistics,
     geometric_null,
     longest_closed_runs,
     null_holding,
+    null_holding_in,
     null_written_and_held,
+    window_segments,
 )
 from vsgjax.config import make_config
 
@@ -80,14 +83,14 @@ def test_gatel0rds_three_rates():
 
 @pytest.mark.parametrize("q, p90", [(0.5, 4), (0.4, 5), (0.1, 22)])
 def test_the_geometric_nulls_mean_is_one_over_the_open_rate_in_long_windows(q, p90):
-    null = geometric_null(q, runs=1, window=10**6)
+    null = geometric_null(q, runs=1, segments=10**6)
     assert null["mean"] == pytest.approx(1 / q, rel=1e-4)
     assert null["p90"] == p90 == math.ceil(math.log(0.1) / math.log(1 - q))
     assert (1 - q) ** p90 <= 0.1 < (1 - q) ** (p90 - 1)
     assert null["max"] == math.ceil(math.log(0.5) / math.log(1 - q))  # the median of one run
-    more = geometric_null(q, runs=1000, window=1000)["max"]
+    more = geometric_null(q, runs=1000, segments=1000)["max"]
     assert (1 - (1 - q) ** more) ** 1000 >= 0.5 > (1 - (1 - q) ** (more - 1)) ** 1000
-    assert geometric_null(q, runs=10**6, window=10)["max"] == 10  # capped at the window
+    assert geometric_null(q, runs=10**6, segments=10)["max"] == 10  # capped at the window
     assert geometric_null(0.0, 5, 30) == {"mean": 30.0, "p90": 30.0, "max": 30.0}
 
 
@@ -246,3 +249,46 @@ def test_independent_gates_write_and_hold_as_the_null_says():
     observed = float(hand_made(gate, first).written_and_held(gap))
     assert observed == pytest.approx(null_written_and_held(q, gap), abs=0.005)
     assert null_written_and_held(q, gap) == pytest.approx((1 - 0.7 ** 2) * 0.7 ** 5)
+
+
+def test_episode_starts_cut_the_windows_segments():
+    first = np.zeros((2, 10), bool)
+    first[0, [0, 4]] = True
+    first[1, 7] = True
+    assert hand_made(np.ones((2, 10, 1)), first).segments() == [[4, 6], [7, 3]]
+    assert window_segments(4, 10) == [[4, 4, 2], [3, 4, 3], [2, 4, 4], [1, 4, 4, 1]]
+    assert all(sum(row) == 64 for row in window_segments(22, 64))
+    with pytest.raises(ValueError, match="got 0, 64"):
+        window_segments(0, 64)
+
+
+def test_the_nulls_of_independent_gates_in_short_episodes_match_sampled_gates():
+    """Independent gates at 0.2 over 48-step windows of 12-step episodes (starts at 0, 12, 24,
+    36): the units closed for 8 steps, the closed runs' mean, their count and the written-and-
+    held units are those the nulls give for these segments, below a window's nulls
+    without episode starts."""
+    q, gap = 0.2, 8
+    gate = jax.random.bernoulli(jax.random.PRNGKey(3), q, (400, 48, 16)).astype(jnp.float32)
+    first = np.zeros((400, 48), bool)
+    first[:, ::12] = True
+    stats = hand_made(gate, first)
+    rows = stats.segments()
+    assert rows[0] == [12, 12, 12, 12]
+    assert float(stats.holding(gap)) == pytest.approx(null_holding_in(q, gap, rows), abs=0.02)
+    assert null_holding_in(q, gap, rows) < null_holding(q, gap, 48) - 0.1
+    assert null_holding_in(q, gap, [[48]]) == pytest.approx(null_holding(q, gap, 48))
+    segments = [s for row in rows for s in row]
+    runs = float(stats.closed_runs.sum())
+    assert runs == pytest.approx(400 * 16 * expected_closed_runs(q, segments) / 400, rel=0.02)
+    summary = stats.summary(gaps=[gap], memory_gap=6)
+    null = geometric_null(q, int(runs), segments)
+    assert summary["gates/closed_run_mean"] == pytest.approx(null["mean"], rel=0.02)
+    assert null["mean"] < geometric_null(q, int(runs), 48)["mean"]
+    assert summary["gates/null_run_max"] == null["max"] == 12  # capped at an episode
+    assert summary[f"gates/null_holding_{gap}"] == pytest.approx(
+        null_holding_in(summary["gates/open"], gap, rows))
+    assert summary["gates/written_and_held_6"] == pytest.approx(
+        null_written_and_held(q, 5), abs=0.01)
+    assert summary["gates/null_written_and_held_6"] == pytest.approx(
+        null_written_and_held(summary["gates/open"], 5))
+    assert "gates/written_and_held_20" not in stats.summary(memory_gap=20)  # no episode fits

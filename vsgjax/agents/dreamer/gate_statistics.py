@@ -184,9 +184,19 @@ class GateStatistics:
         mean = lambda mask: (self.post_prob * mask).sum() / mask.sum()
         return mean(at), mean(other)
 
+    def segments(self) -> list[list[int]]:
+        """Per sequence, the lengths of its episode segments: the window cut at each episode
+        start after its first step (one segment ``[T]`` where the window holds no start)."""
+        rows = []
+        for first in np.asarray(jax.device_get(self.is_first), bool):
+            cuts = [0, *np.flatnonzero(first[1:]) + 1, len(first)]
+            rows.append(np.diff(cuts).tolist())
+        return rows
+
     def closed_run_quantiles(self) -> dict[str, float]:
         """The closed runs' mean, 90th percentile and max, and the same for the geometric
-        null of independent gates with the same open rate (:func:`geometric_null`)."""
+        null of independent gates with the same open rate in the same episode segments
+        (:func:`geometric_null`)."""
         counts = np.asarray(jax.device_get(self.closed_runs), float)
         runs, lengths = counts.sum(), np.arange(1, len(counts) + 1)
         observed = {"mean": 0.0, "p90": 0.0, "max": 0.0}
@@ -194,7 +204,8 @@ class GateStatistics:
             observed = {"mean": float((lengths * counts).sum() / runs),
                         "p90": float(lengths[np.argmax(counts.cumsum() >= 0.9 * runs)]),
                         "max": float(lengths[np.flatnonzero(counts)[-1]])}
-        null = geometric_null(float(self.gate.mean()), int(runs), len(counts))
+        segments = [length for row in self.segments() for length in row]
+        null = geometric_null(float(self.gate.mean()), int(runs), segments)
         return {**{f"closed_run_{k}": v for k, v in observed.items()},
                 **{f"null_run_{k}": v for k, v in null.items()}}
 
@@ -208,7 +219,16 @@ class GateStatistics:
         the first observation shows: MemoryChain's cue) and at the other steps,
         ``gates/prob_step1`` and ``gates/prob_other_steps``. The same over the :attr:`live`
         units only, under ``gates/live_*`` (``gates/live_units`` their fraction,
-        ``gates/open_live`` their open rate, the null at that rate): dead units look held."""
+        ``gates/open_live`` their open rate, the null at that rate): dead units look held.
+
+        With a ``memory_gap`` of ``L`` (a cue shown at episode step 0, asked for at step
+        ``L + 1``) whose episodes fit the window, ``gates/written_and_held_<L>``: the units
+        written at step 1 or 2 and closed to step ``L + 1``
+        (:meth:`written_and_held` over ``L - 1`` steps), and ``gates/null_written_and_held_<L>``
+        for independent gates at the open rate.
+
+        Every null is that of independent gates in this batch's episode segments: an episode
+        start cuts closed runs (:meth:`segments`)."""
         lengths = jnp.arange(1, self.closed_runs.shape[0] + 1)
         runs = self.closed_runs.sum()
         window = self.gate.shape[1]
@@ -244,12 +264,18 @@ class GateStatistics:
             if jnp.isfinite(cue) and jnp.isfinite(other):  # episode starts (and live units)
                 out.update({f"gates/{prefix}prob_step1": cue,
                             f"gates/{prefix}prob_other_steps": other})
-        open_rate = float(self.gate.mean())
+        open_rate, segments = float(self.gate.mean()), self.segments()
         for gap in gaps:
             out[f"gates/holding_{gap}"] = self.holding(gap)
-            out[f"gates/null_holding_{gap}"] = null_holding(open_rate, gap, window)
+            out[f"gates/null_holding_{gap}"] = null_holding_in(open_rate, gap, segments)
             out[f"gates/live_holding_{gap}"] = self.holding(gap, live_only=True)
-            out[f"gates/live_null_holding_{gap}"] = null_holding(live_rate, gap, window)
+            out[f"gates/live_null_holding_{gap}"] = null_holding_in(live_rate, gap, segments)
+        if memory_gap > 0:
+            held = self.written_and_held(max(1, memory_gap - 1))
+            if jnp.isfinite(held):  # an episode's steps 1 to L + 1 fit the window
+                out[f"gates/written_and_held_{memory_gap}"] = held
+                out[f"gates/null_written_and_held_{memory_gap}"] = null_written_and_held(
+                    open_rate, max(1, memory_gap - 1))
         return {key: float(value) for key, value in out.items()}
 
 
@@ -260,8 +286,8 @@ HOLDING_GAPS = (5, 10, 20, 50)
 def null_holding(open_rate: float, gap: int, window: int) -> float:
     """Probability that a unit whose gate opens independently with probability ``open_rate``
     at each of ``window`` steps is closed for ``gap`` consecutive steps at least once: the
-    :meth:`GateStatistics.holding` of independent gates (in windows without an episode start
-    inside; one would cut runs and lower it)."""
+    :meth:`GateStatistics.holding` of independent gates in windows without an episode start
+    inside (:func:`null_holding_in` with them)."""
     if gap < 1:
         raise ValueError(f"a holding gap is a number of steps >= 1, got {gap}")
     run = np.zeros(gap)  # probability of a current closed run of r < gap steps, not yet held
@@ -273,6 +299,42 @@ def null_holding(open_rate: float, gap: int, window: int) -> float:
     return float(held)
 
 
+def null_holding_in(open_rate: float, gap: int, rows: Sequence[Sequence[int]]) -> float:
+    """:func:`null_holding` in windows cut by episode starts: ``rows`` holds each window's
+    episode segment lengths (:meth:`GateStatistics.segments`); a unit holds in a window if
+    it does in one of its segments, independently. The mean over the windows."""
+    if not rows:
+        raise ValueError("null_holding_in needs at least one window of episode segments")
+    return float(np.mean([1.0 - np.prod([1.0 - null_holding(open_rate, gap, length)
+                                         for length in row]) for row in rows]))
+
+
+def window_segments(episode_steps: int, window: int) -> list[list[int]]:
+    """The episode segments of a ``window``-step sequence over back-to-back episodes of
+    ``episode_steps`` stored steps, one row per step of an episode the window can start at
+    (rows equally likely for windows that start anywhere): a null's segments for a replay
+    that is not at hand (:func:`null_holding_in`, :func:`geometric_null`)."""
+    if episode_steps < 1 or window < 1:
+        raise ValueError(f"episode_steps and window are >= 1, got {episode_steps}, {window}")
+    rows = []
+    for offset in range(episode_steps):
+        row, left = [min(episode_steps - offset, window)], window
+        left -= row[0]
+        while left > 0:
+            row.append(min(episode_steps, left))
+            left -= row[-1]
+        rows.append(row)
+    return rows
+
+
+def expected_closed_runs(open_rate: float, segments: Sequence[int]) -> float:
+    """Expected closed runs of one unit whose gate opens independently with probability
+    ``q = open_rate`` over episode segments of these lengths: a run starts at a segment's
+    first step if closed, and at any later closed step after an open one,
+    ``(1 - q)(1 + (s - 1) q)`` per segment of ``s`` steps."""
+    return float(sum((1.0 - open_rate) * (1.0 + (s - 1) * open_rate) for s in segments))
+
+
 def null_written_and_held(open_rate: float, gap: int) -> float:
     """:meth:`GateStatistics.written_and_held` of gates that open independently with
     probability ``open_rate`` at each step: open at step 1 or 2, then closed ``gap`` steps."""
@@ -280,34 +342,43 @@ def null_written_and_held(open_rate: float, gap: int) -> float:
     return float((1.0 - closed ** 2) * closed ** gap)
 
 
-def geometric_null(open_rate: float, runs: int, window: int) -> dict[str, float]:
+def geometric_null(open_rate: float, runs: int, segments: int | Sequence[int]
+                   ) -> dict[str, float]:
     """Closed-run statistics of gates that open independently with probability ``q =
-    open_rate`` at each step, whose closed runs are geometric: ``P(k) = (1 - q)^(k - 1) q``.
+    open_rate`` at each step, whose closed runs are geometric: ``P(k) = (1 - q)^(k - 1) q``,
+    over episode segments of these lengths (an int: one window of ``T`` steps without an
+    episode start).
 
-    ``mean``: the mean of the closed runs seen in windows of ``T = window`` steps, pooled as
+    ``mean``: the mean of the closed runs the segments show, pooled as
     :meth:`GateStatistics.closed_run_quantiles` pools them: the expected closed steps over the
-    expected runs, ``T (1 - q) / ((1 - q)(1 + (T - 1) q)) = T / (1 + (T - 1) q)``, which is
-    ``1 / q`` for long windows and ``T`` when the gates never open (a window's edges cut runs:
-    the uncut mean ``1 / q`` would exceed what any window can show once ``1 / q > T``).
-    ``p90`` the smallest ``k`` with ``1 - (1 - q)^k >= 0.9``; ``max`` the median of the longest
-    of ``runs`` such runs, the smallest ``k`` with ``(1 - (1 - q)^k)^runs >= 1/2``; both capped
-    at ``T``. An episode start inside a window cuts runs too; this null assumes none.
+    expected runs (:func:`expected_closed_runs`), ``Σ s / Σ (1 + (s - 1) q)``, for one window
+    ``T / (1 + (T - 1) q)``, which is ``1 / q`` for long windows and ``T`` when the gates never
+    open (a segment's edges cut runs: the uncut mean ``1 / q`` would exceed what any window can
+    show once ``1 / q > T``). ``p90`` the smallest ``k`` with ``1 - (1 - q)^k >= 0.9``; ``max``
+    the median of the longest of ``runs`` such runs, the smallest ``k`` with
+    ``(1 - (1 - q)^k)^runs >= 1/2``; both capped at the longest segment: upper bounds for the
+    runs the segments cut, which are shorter.
     """
     if not 0.0 <= open_rate <= 1.0:
         raise ValueError(f"an open rate lies in [0, 1], got {open_rate}")
-    if open_rate == 0.0:
-        return {"mean": float(window), "p90": float(window), "max": float(window)}
+    segments = [segments] if isinstance(segments, int) else list(segments)
+    if not segments or min(segments) < 1:
+        raise ValueError(f"segments are lengths >= 1, got {segments}")
+    longest_segment = max(segments)
     if open_rate == 1.0:
         return {"mean": 1.0, "p90": 1.0, "max": 1.0}
+    mean = sum(segments) / sum(1.0 + (s - 1) * open_rate for s in segments)
+    if open_rate == 0.0:
+        return {"mean": mean, "p90": float(longest_segment), "max": float(longest_segment)}
     log_closed = math.log1p(-open_rate)
 
     def first_k(log_tail: float) -> float:
-        """The smallest ``k`` (>= 1, <= window) with ``(1 - q)^k <= exp(log_tail)``."""
-        return float(min(window, max(1, math.ceil(log_tail / log_closed - 1e-9))))
+        """The smallest ``k`` (>= 1, <= the longest segment) with ``(1 - q)^k <=
+        exp(log_tail)``."""
+        return float(min(longest_segment, max(1, math.ceil(log_tail / log_closed - 1e-9))))
 
     # (1 - (1 - q)^k)^runs >= 1/2  <=>  (1 - q)^k <= 1 - 2^(-1/runs)
     longest = first_k(math.log(-math.expm1(math.log(0.5) / max(runs, 1))))
-    mean = window / (1.0 + (window - 1) * open_rate)
     return {"mean": mean, "p90": first_k(math.log(0.1)), "max": longest}
 
 
