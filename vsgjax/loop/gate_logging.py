@@ -12,8 +12,10 @@ A line holds every key of ``GateStatistics.summary()``, those that show holding 
 closed runs' mean, 90th percentile and max against the geometric null of the same open rate,
 GateL0RD's three rates, and ``gates/holding_<gap>`` for each gap of ``HOLDING_GAPS`` (5, 10,
 20, 50 steps) that fits ``train.length`` and for the task's ``memory_gap`` if it names one
-(MemoryChain's L), and, where the batch shows episode starts, the gate probability at episode
-step 1 (MemoryChain's cue) against the other steps. The gate objective's own loss and value are the
+(MemoryChain's L; with ``gates/written_and_held_<L>``, the units written at the cue and held to
+the query, where an episode fits the window), every null counting the batch's episode starts,
+and, where the batch shows episode starts, the gate probability at episode step 1 (MemoryChain's
+cue) against the other steps. The gate objective's own loss and value are the
 update's metrics (``train/wm/gate_*``), not these.
 """
 

@@ -201,7 +201,8 @@ class DreamerAgent:
     def gate_summary(self, state: AgentState, batch: dict, memory_gap: int = 0
                      ) -> dict[str, float]:
         """The ``gates/*`` scalars of the state's world model on a ``[B, T]`` batch (with
-        ``gates/holding_<memory_gap>`` for a task that names its memory gap)."""
+        ``gates/holding_<memory_gap>`` and ``gates/written_and_held_<memory_gap>`` for a task
+        that names its memory gap)."""
         stats = gate_statistics(state.params["wm"], batch, config=self.config)
         return stats.summary(memory_gap=memory_gap)
 
