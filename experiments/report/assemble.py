@@ -112,7 +112,7 @@ def section(context: Context, kind: str, name: str, figure: dict, out: Path) -> 
                            figure.get("memory_rule", ()), figure.get("holding_gap"))
         return Section(kind, name, data, draw_panels(data, stem), panels_markdown(data))
     if kind == "memory_len":
-        data = memory_len_data(context, figure.get("published"))
+        data = memory_len_data(context, figure.get("published"), figure.get("baseline"))
         table = memory_len_markdown(data)
         files = draw_memory_len(data, stem) + [stem.with_suffix(".md")]
         files[-1].write_text(table + "\n")

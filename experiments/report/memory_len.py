@@ -27,7 +27,10 @@ A run's memory length is its config's ``env.memory_length``; its series is its m
   the L + 1 agent steps'), a window starting at any step of an episode.
 
 The published points (``published``: a file of ``experiments/reference_scores/``, ``{"source",
-"records": [{"method", "xs": lengths, "ys": success}]}``) are drawn as they are.
+"records": [{"method", "xs": lengths, "ys": success}]}``) are drawn as they are. With a
+``baseline`` series (e.g. ``DreamerV2``), each L where it and another series have 2 or more
+seeds gets a verdict line: the difference of their mean success against the baseline's std
+over seeds, the reports' rule (``experiments/report/compare.py``).
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from experiments.report.compare import against_baseline
 from experiments.report.context import Context
 from experiments.report.runs import is_number, read_jsonl, warn
 from experiments.report.style import colour, fmt, markdown_table, save_figure, write_missing_note
@@ -119,6 +123,7 @@ class MemoryLenData:
     published: dict[str, tuple[list[float], list[float]]]  # method -> (lengths, success)
     published_source: str
     missing: list[Run]
+    baseline: str | None = None
 
     def of(self, series: str, length: int) -> list[SeedResult]:
         return [r for r in self.results if r.series == series and r.length == length]
@@ -183,8 +188,10 @@ def load_published(context: Context, name: str | None) -> tuple[dict, str]:
             data.get("source", ""))
 
 
-def memory_len_data(context: Context, published: str | None = None) -> MemoryLenData:
-    """Every run of the experiment scored, bsuite's score per series and seed."""
+def memory_len_data(context: Context, published: str | None = None,
+                    baseline: str | None = None) -> MemoryLenData:
+    """Every run of the experiment scored, bsuite's score per series and seed; ``baseline``
+    the series the others are compared with (a warning, and no verdicts, if there is none)."""
     from bsuite.experiments.memory_len.analysis import score
 
     results, frames, missing = [], {}, []
@@ -210,7 +217,11 @@ def memory_len_data(context: Context, published: str | None = None) -> MemoryLen
         warn(f"memory_len: {len(missing)} runs have no training episodes or evaluation yet",
              context.records.problems)
     points, source = load_published(context, published)
-    return MemoryLenData(series, lengths, results, scores, points, source, missing)
+    if baseline is not None and baseline not in series:
+        warn(f"memory_len: baseline {baseline!r} is not a series of the experiment; valid: "
+             f"{', '.join(series)}; no verdicts", context.records.problems)
+        baseline = None
+    return MemoryLenData(series, lengths, results, scores, points, source, missing, baseline)
 
 
 def mean_std(values: list[float]) -> tuple[float, float]:
@@ -258,6 +269,7 @@ def memory_len_markdown(data: MemoryLenData) -> str:
     rows += [[str(L), *(_cell(data.of(name, L)) for name in data.series)]
              for L in data.lengths]
     lines += [markdown_table(rows), ""]
+    lines += verdicts(data)
     rows = [["series", "bsuite memory_len score (per seed)", "mean"]]
     for name in data.series:
         values = data.scores.get(name, [])
@@ -272,6 +284,25 @@ def memory_len_markdown(data: MemoryLenData) -> str:
     lines += ["Wall minutes per run (mean over seeds; seeds trained together share a "
               "process).", "", markdown_table(rows)]
     return "\n".join(lines)
+
+
+def verdicts(data: MemoryLenData) -> list[str]:
+    """One line per L and series against the baseline, where both have 2 or more seeds."""
+    if data.baseline is None:
+        return []
+    lines = []
+    for L in data.lengths:
+        base = [r.success for r in data.of(data.baseline, L)]
+        for name in data.series:
+            ours = [r.success for r in data.of(name, L)]
+            if name == data.baseline or len(ours) < 2 or len(base) < 2:
+                continue
+            (mean, _), (base_mean, base_std) = mean_std(ours), mean_std(base)
+            difference = mean - base_mean
+            lines.append(f"- L = {L}: {name} − {data.baseline} = {difference:+.2f} "
+                         f"({data.baseline}'s std {base_std:.2f}): "
+                         f"{against_baseline(difference, base_std)}.")
+    return [*lines, ""] if lines else []
 
 
 def gates_markdown(data: MemoryLenData) -> list[str]:

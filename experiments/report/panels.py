@@ -29,6 +29,7 @@ import matplotlib.ticker
 from matplotlib.figure import Figure
 
 from experiments.report.binning import Stat, binned, seed_stats, value_near
+from experiments.report.compare import against_baseline
 from experiments.report.context import Context
 from experiments.report.memory_rule import MemoryRule, memory_rule_line, read_memory_rules
 from experiments.report.runs import Curve, is_number, read_jsonl, warn
@@ -281,14 +282,8 @@ def verdict(data: PanelsData, panel: Panel, pair: tuple[str, str]) -> str:
         return (f"{where}: not enough runs to compare {ours} (n={a.n}) with {baseline} "
                 f"(n={b.n}).")
     difference = a.mean - b.mean
-    if difference > b.std:
-        outcome = "above the baseline beyond one standard deviation"
-    elif difference >= -b.std:
-        outcome = "within one std of the baseline"
-    else:
-        outcome = "below the baseline by more than one std"
     return (f"{where}: {ours} − {baseline} = {difference:+.1f} ({baseline}'s std "
-            f"{b.std:.1f}): {outcome}.")
+            f"{b.std:.1f}): {against_baseline(difference, b.std)}.")
 
 
 def panels_markdown(data: PanelsData) -> str:

@@ -11,7 +11,8 @@ import pytest
 
 from experiments import report
 from experiments.report import Context
-from experiments.report.memory_len import memory_len_data
+from experiments.report.memory_len import memory_len_data, verdicts
+from experiments.report.runs import ReportWarning
 from experiments.spec import load_experiment
 from vsgjax.agents.dreamer.gate_statistics import null_holding, null_holding_in, window_segments
 
@@ -85,3 +86,23 @@ def test_bsuite_scores_success_gates_and_missing_runs(tmp_path):
     assert f"| VSG-gatel0rd-lambda0.1 | 20 | 0.10 | 0.20 | 0.500 ({live_null:.3f}) | " \
         "0.70 / 0.10 |" in section.markdown
     assert "a reduced budget" in section.markdown
+
+
+def test_each_length_is_compared_with_the_baseline_by_its_std(tmp_path):
+    experiment = load_experiment("memory_len", seeds=2)
+    ep = [1.0] * 10
+    for seed, last in ((0, 1.0), (1, 0.0)):  # DreamerV2 at L = 20: success 1.0 and 0.5
+        write_run(runs_by(experiment, "DreamerV2-L20", seed), tmp_path, ep, last)
+        write_run(runs_by(experiment, "VSG-gatel0rd-lambda0.1-L20", seed), tmp_path, ep, 1.0)
+        write_run(runs_by(experiment, "VSG-L20", seed), tmp_path, ep, -0.9)
+    write_run(runs_by(experiment, "VSG-L10", 0), tmp_path, ep, 1.0)  # one seed: no verdict
+    data = memory_len_data(Context.create(experiment, tmp_path), baseline="DreamerV2")
+    lines = verdicts(data)
+    assert lines == [
+        "- L = 20: VSG − DreamerV2 = -0.70 (DreamerV2's std 0.25): below the baseline by more "
+        "than one std.",
+        "- L = 20: VSG-gatel0rd-lambda0.1 − DreamerV2 = +0.25 (DreamerV2's std 0.25): within "
+        "one std of the baseline.", ""]
+    with pytest.warns(ReportWarning, match="baseline 'Dreamer' is not a series .*DreamerV2"):
+        assert memory_len_data(Context.create(experiment, tmp_path),
+                               baseline="Dreamer").baseline is None
