@@ -137,8 +137,9 @@ def test_an_agent_trains_evaluates_and_resumes_to_the_uninterrupted_run(model, t
     assert all({"gates/holding_3", "gates/prob_step1"} <= set(line) for line in gate_lines)
     # units written at the cue and held to the query, where a batch holds a whole episode
     held = [line for line in gate_lines if "gates/written_and_held_3" in line]
-    assert held and all(0 <= line["gates/written_and_held_3"] <= 1 and
-                        0 < line["gates/null_written_and_held_3"] < 1 for line in held)
+    assert bool(held) == (model == "vsg")
+    assert all(0 <= line["gates/written_and_held_3"] <= 1
+               and 0 < line["gates/null_written_and_held_3"] < 1 for line in held)
     episodes = sorted((tmp_path / "whole" / "episodes").iterdir())
     assert len(episodes) == 160 // 4  # one file per finished episode (4 env steps each)
     assert evaluate.main([str(tmp_path / "whole"), "--episodes", "4"]) == 0  # host evaluator
