@@ -47,7 +47,6 @@ from matplotlib.figure import Figure
 import vsgjax
 from experiments.report.style import save_figure
 from vsgjax.agents.dreamer.api import world_model_for
-from vsgjax.agents.dreamer.gate_statistics import null_written_and_held
 from vsgjax.config import Config, ConfigError
 from vsgjax.envs.gymnax_tasks import OBS_KEY, MemoryChainTask
 from vsgjax.registry.agents import MODELS, dreamer_models, gated_models, prototype_models
@@ -166,7 +165,8 @@ def recall(config: Config, params: dict, batch: dict, key: jax.Array) -> dict:
     }
 
 
-# A record's gate statistic -> its GateStatistics.summary key (``{gap}``: the cue's gap).
+# A record's gate statistic -> its GateStatistics.summary key (``{gap}``: the cue's gap L - 1,
+# ``{length}``: the memory gap L).
 RECORD_KEYS = {
     "open": "open", "steps_any_open": "steps_any_open", "units_ever_open": "units_ever_open",
     **{f"{kind}_run_{q}": f"{kind}_run_{q}" for kind in ("closed", "null")
@@ -176,6 +176,8 @@ RECORD_KEYS = {
     "live_units": "live_units", "open_live": "open_live",
     "live_holding": "live_holding_{gap}", "live_null_holding": "live_null_holding_{gap}",
     "live_prob_step1": "live_prob_step1", "live_prob_other": "live_prob_other_steps",
+    "written_and_held": "written_and_held_{length}",
+    "null_written_and_held": "null_written_and_held_{length}",
 }
 
 
@@ -190,11 +192,10 @@ def gate_record(config: Config, params: dict, batch: dict, key: jax.Array) -> di
     # The cue is shown at stored steps 0 and 1 and needed at step L + 1: a unit written at
     # step 2 (from step 1's posterior) holds it if it stays closed for the L - 1 steps after.
     gap = max(1, length - 1)
-    summary = stats.summary(gaps=[gap])
-    out = {name: summary.get(f"gates/{key}".format(gap=gap), math.nan)
+    summary = stats.summary(gaps=[gap], memory_gap=length)
+    out = {name: summary.get(f"gates/{key}".format(gap=gap, length=length), math.nan)
            for name, key in RECORD_KEYS.items()}
-    out.update({"gap": gap, "written_and_held": float(stats.written_and_held(gap)),
-                "null_written_and_held": null_written_and_held(out["open"], gap)})
+    out["gap"] = gap
     return {k: (v if math.isfinite(v) else None) for k, v in out.items()}
 
 

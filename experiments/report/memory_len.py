@@ -293,12 +293,14 @@ def verdicts(data: MemoryLenData) -> list[str]:
     lines = []
     for L in data.lengths:
         base = [r.success for r in data.of(data.baseline, L)]
+        if len(base) < 2:
+            continue
+        base_mean, base_std = mean_std(base)
         for name in data.series:
             ours = [r.success for r in data.of(name, L)]
-            if name == data.baseline or len(ours) < 2 or len(base) < 2:
+            if name == data.baseline or len(ours) < 2:
                 continue
-            (mean, _), (base_mean, base_std) = mean_std(ours), mean_std(base)
-            difference = mean - base_mean
+            difference = mean_std(ours)[0] - base_mean
             lines.append(f"- L = {L}: {name} − {data.baseline} = {difference:+.2f} "
                          f"({data.baseline}'s std {base_std:.2f}): "
                          f"{against_baseline(difference, base_std)}.")

@@ -316,15 +316,8 @@ def window_segments(episode_steps: int, window: int) -> list[list[int]]:
     that is not at hand (:func:`null_holding_in`, :func:`geometric_null`)."""
     if episode_steps < 1 or window < 1:
         raise ValueError(f"episode_steps and window are >= 1, got {episode_steps}, {window}")
-    rows = []
-    for offset in range(episode_steps):
-        row, left = [min(episode_steps - offset, window)], window
-        left -= row[0]
-        while left > 0:
-            row.append(min(episode_steps, left))
-            left -= row[-1]
-        rows.append(row)
-    return rows
+    return [np.diff([0, *range(episode_steps - offset, window, episode_steps), window]).tolist()
+            for offset in range(episode_steps)]
 
 
 def expected_closed_runs(open_rate: float, segments: Sequence[int]) -> float:
@@ -367,7 +360,7 @@ def geometric_null(open_rate: float, runs: int, segments: int | Sequence[int]
     longest_segment = max(segments)
     if open_rate == 1.0:
         return {"mean": 1.0, "p90": 1.0, "max": 1.0}
-    mean = sum(segments) / sum(1.0 + (s - 1) * open_rate for s in segments)
+    mean = sum(segments) * (1.0 - open_rate) / expected_closed_runs(open_rate, segments)
     if open_rate == 0.0:
         return {"mean": mean, "p90": float(longest_segment), "max": float(longest_segment)}
     log_closed = math.log1p(-open_rate)
