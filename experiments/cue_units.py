@@ -171,8 +171,9 @@ def _cell(value, digits: int = 2) -> str:
 
 LEGEND = (
     "Per run, on held-out random-policy episodes (the record's `episodes`) filtered by its world "
-    "model at its last checkpoint: `cue_units`, units of the recurrent state whose cue separation d' at the "
-    "query (stored step L, read by the actor for the deciding action) is >= 1; "
+    "model at its last checkpoint: `cue_units`, units of the recurrent state whose cue "
+    "separation d' at the query (stored step L, read by the actor for the deciding action) "
+    "is >= 1; "
     "`cue_units_held`, those closed at every step from 3 to L in >= 90% of the episodes "
     "(`units_held`: all such units, those that never open included); `cue_gated_units`, units "
     "whose gate opens at step 1 or 2 with probabilities >= 0.5 apart under the two cues, "
