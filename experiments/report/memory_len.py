@@ -26,6 +26,12 @@ A run's memory length is its config's ``env.memory_length``; its series is its m
   ``train.length`` steps over back-to-back episodes of L + 2 stored steps (the reset's and
   the L + 1 agent steps'), a window starting at any step of an episode.
 
+* the cue units, where ``python -m experiments.cue_units`` wrote the run's record into the
+  experiment's :data:`CUE_UNITS_DIR` (``<group>-s<seed>.json``) at the run's last evaluation
+  step: the units that carry the cue to the query, those held closed to it, the cue-gated units
+  and the readouts of the cue from the state (a record from an earlier checkpoint is left out,
+  with a warning).
+
 The published points (``published``: a file of ``experiments/reference_scores/``, ``{"source",
 "records": [{"method", "xs": lengths, "ys": success}]}``) are drawn as they are. With a
 ``baseline`` series (e.g. ``DreamerV2``), each L where it and another series have 2 or more
@@ -59,6 +65,8 @@ from vsgjax.config import Config
 from vsgjax.loop.rundir import METRICS_FILE
 from vsgjax.registry.agents import agent_entry
 
+CUE_UNITS_DIR = "cue_units"  # the experiment's folder of experiments.cue_units records
+CUE_KEYS = ("cue_units", "cue_units_held", "cue_gated_units", "readout_all", "readout_held")
 BSUITE_EPISODES = 10_000  # bsuite's sweep: training episodes per memory length
 GATE_KEYS = ("open", "closed_run_p90", "null_run_p90", "closed_run_max", "null_run_max",
              "prob_step1", "prob_other_steps", "live_units", "open_live", "live_prob_step1",
@@ -106,6 +114,7 @@ class SeedResult:
     success: float  # the last evaluation's fraction of correct episodes
     wall_minutes: float
     gates: dict[str, float] = field(default_factory=dict)
+    cue: dict[str, float | None] = field(default_factory=dict)  # its cue_units record's counts
 
     @property
     def learned(self) -> bool:
@@ -176,8 +185,25 @@ def read_run(context: Context, run: Run) -> tuple[SeedResult, object] | None:
     frame = training_frame(returns, length)
     wall = float(curve.wall[-1]) / 60 if curve.wall is not None else float("nan")
     result = SeedResult(series_of(run, length), length, run.seed, len(returns),
-                        regret_ratio(frame), (float(curve.ys[-1]) + 1) / 2, wall, gates)
+                        regret_ratio(frame), (float(curve.ys[-1]) + 1) / 2, wall, gates,
+                        read_cue_record(context, run, int(curve.xs[-1])))
     return result, frame
+
+
+def read_cue_record(context: Context, run: Run, last_step: int) -> dict[str, float | None]:
+    """The run's :data:`CUE_KEYS` from its ``experiments.cue_units`` record, if there is one
+    measured at ``last_step`` (the run's last evaluation); ``{}`` otherwise."""
+    path = (context.records.root / run.experiment / CUE_UNITS_DIR
+            / f"{run.method_dir}-s{run.seed}.json")
+    if not path.exists():
+        return {}
+    record = json.loads(path.read_text())
+    if record.get("step") != last_step:
+        warn(f"memory_len: {path} measured the checkpoint at env step {record.get('step')}, "
+             f"the run ends at {last_step}: left out (run python -m experiments.cue_units again)",
+             context.records.problems)
+        return {}
+    return {key: record.get(key) for key in CUE_KEYS}
 
 
 def load_published(context: Context, name: str | None) -> tuple[dict, str]:
@@ -278,6 +304,7 @@ def memory_len_markdown(data: MemoryLenData) -> str:
     lines += ["bsuite's score: the fraction of the lengths learned, per seed with every "
               "length.", "", markdown_table(rows), ""]
     lines += gates_markdown(data)
+    lines += cue_markdown(data)
     rows = [["L", *data.series]]
     rows += [[str(L), *(fmt(mean_std([r.wall_minutes for r in data.of(n, L)])[0], 1)
                         for n in data.series)] for L in data.lengths]
@@ -347,3 +374,29 @@ def gates_markdown(data: MemoryLenData) -> list[str]:
             "open rate, the live units held across L against independent gates at that rate, "
             "and their gate probability at the cue step against the others (— where the runs "
             "predate these statistics).", "", markdown_table(live), ""]
+
+
+def _per_seed(runs: list[SeedResult], key: str, digits: int = 0) -> str:
+    return ", ".join(fmt(r.cue.get(key), digits) for r in runs)
+
+
+def cue_markdown(data: MemoryLenData) -> list[str]:
+    """Per series and L, each seed's cue units beside its success, where records exist."""
+    rows = [["series", "L", "success", "cue units", "held to the query", "cue-gated units",
+             "readout: all units", "readout: held cue units"]]
+    for name in data.series:
+        for L in data.lengths:
+            runs = [r for r in data.of(name, L) if r.cue]
+            if runs:
+                rows.append([name, str(L), ", ".join(fmt(r.success, 2) for r in runs),
+                             *(_per_seed(runs, key) for key in CUE_KEYS[:3]),
+                             *(_per_seed(runs, key, 2) for key in CUE_KEYS[3:])])
+    if len(rows) == 1:
+        return []
+    return ["The cue units (`python -m experiments.cue_units`, per seed, at the last "
+            "checkpoint, on held-out random-policy episodes): units of the state whose cue "
+            "separation d' at the query is >= 1, those closed from step 3 to the query in >= 90% "
+            "of the episodes, units whose gate opens at the cue with probabilities >= 0.5 apart "
+            "under the two cues, and a linear readout's held-out accuracy of the cue from the "
+            "state (0.5: chance); — where a model has no gates or no held cue unit.", "",
+            markdown_table(rows), ""]
