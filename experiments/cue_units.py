@@ -14,8 +14,8 @@ random-policy episodes (the recall probe's :func:`experiments.recall_probe.colle
   the *cue units* are those with ``dprime ≥ 1``;
 * for a gated model: ``P(open at step s | cue)`` at the write steps ``s = 1, 2`` (the gate of
   step ``t`` reads the posterior of ``t − 1``, so only these see the cue), and ``held``, the
-  fraction of episodes in which the unit is closed at every step from 3 to ``L``: its value at
-  the query is the one written by step 2.
+  fraction of episodes in which the unit is closed at every step from 3 to ``L`` (runs with
+  L >= 3 only): its value at the query is the one written by step 2.
 
 A run's summary counts the cue units, those held in at least :data:`HELD_SHARE` of the
 episodes, and the *cue-gated* units, whose gate opens at a write step with probabilities at
@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -41,10 +40,13 @@ import numpy as np
 
 import vsgjax
 from experiments.recall_probe import TASK, collect
+from experiments.report.style import fmt
 from vsgjax.envs.gymnax_tasks import OBS_KEY, MemoryChainTask
 from vsgjax.registry.agents import gated_models
 
+CONTEXT = 2  # the context's entry of MemoryChain's observation [countdown, query, context]
 WRITE_STEPS = (1, 2)
+FIRST_HELD_STEP = WRITE_STEPS[-1] + 1
 CUE_UNIT_DPRIME = 1.0  # the two cues' state means a pooled std apart at the query
 HELD_SHARE = 0.9
 CUE_GATED_GAP = 0.5
@@ -102,7 +104,7 @@ def measure(state: np.ndarray, cue: np.ndarray, length: int, gate: np.ndarray | 
     }
     if gate is None:
         return out
-    held = (gate[:, 3:length + 1] == 0).all(1).mean(0)  # [D]
+    held = (gate[:, FIRST_HELD_STEP:length + 1] == 0).all(1).mean(0)  # [D]
     held_cue_units = cue_units[held[cue_units] >= HELD_SHARE]
     gap = cue_gate_gap(gate, cue)
     shuffled = np.random.default_rng(seed).permutation(cue)
@@ -148,6 +150,10 @@ def cue_record(logdir: Path, episodes: int = DEFAULT_EPISODES, seed: int = 0) ->
     if config.env.task != TASK or not hasattr(run.params, "wm"):
         raise ValueError(f"run {logdir}: task {config.env.task!r}, model {config.agent!r}; "
                          f"valid: a Dreamer model (with a world model) on {TASK!r}")
+    if config.env.memory_length < FIRST_HELD_STEP:
+        raise ValueError(f"run {logdir}: env.memory_length={config.env.memory_length}; valid: "
+                         f">= {FIRST_HELD_STEP} (a unit holds the cue from step "
+                         f"{FIRST_HELD_STEP} to the query at step L)")
     batch = held_out_episodes(run, episodes, seed)
     posts, _ = vsgjax.observe(config, run.params.wm, batch,
                               jax.random.fold_in(jax.random.PRNGKey(seed), 1))
@@ -155,18 +161,12 @@ def cue_record(logdir: Path, episodes: int = DEFAULT_EPISODES, seed: int = 0) ->
     state = state.reshape(*state.shape[:2], -1)
     gate = np.asarray(posts.gate) if config.agent in gated_models() else None
     (obs_key,) = run.world_model.obs_shape.keys
-    cue = np.sign(np.asarray(batch[obs_key])[:, 0, 2])
+    cue = np.sign(np.asarray(batch[obs_key])[:, 0, CONTEXT])
     return {"run": f"{logdir.parent.name}/{logdir.name}", "model": config.agent,
             "gate_objective": config.wm.gate_objective if gate is not None else None,
             "memory_length": config.env.memory_length, "step": run.step,
             "episodes": episodes, "seed": seed,
             **measure(state, cue, config.env.memory_length, gate, seed)}
-
-
-def _cell(value, digits: int = 2) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "—"
-    return f"{value:.{digits}f}" if isinstance(value, float) else str(value)
 
 
 LEGEND = (
@@ -189,7 +189,8 @@ def table(records: Sequence[dict]) -> str:
     lines = ["| run | L | " + " | ".join(COLUMNS) + " |",
              "|---|---|" + "---|" * len(COLUMNS)]
     for record in sorted(records, key=lambda r: (r["memory_length"], r["run"])):
-        cells = [_cell(record.get(name)) for name in COLUMNS]
+        cells = [fmt(value, 0 if isinstance(value, int) else 2)
+                 for value in map(record.get, COLUMNS)]
         lines.append(f"| {record_name(record)} | {record['memory_length']} | "
                      + " | ".join(cells) + " |")
     return "\n".join(lines)
