@@ -23,8 +23,10 @@ least :data:`CUE_GATED_GAP` apart under the two cues, against the largest gap of
 with the cues shuffled among the episodes (the null of gates that ignore the cue). The readout
 accuracies fit a diagonal linear discriminant to the state at the query on the first half of
 the episodes and score its sign on the second: from all units, and from the held cue units
-only. ``--out`` writes one JSON record a run (``<group>-s<seed>.json``) and ``report.md``, the
-table of every record there.
+only. ``actor_accuracy`` is how often the actor's mode at the query, from the same filtered
+states, takes the action the cue asks for: a world model that holds the cue (readout 1) with
+an actor at 0.5 has failed in its actor, not its memory. ``--out`` writes one JSON record a
+run (``<group>-s<seed>.json``) and ``report.md``, the table of every record there.
 """
 
 from __future__ import annotations
@@ -166,7 +168,20 @@ def cue_record(logdir: Path, episodes: int = DEFAULT_EPISODES, seed: int = 0) ->
             "gate_objective": config.wm.gate_objective if gate is not None else None,
             "memory_length": config.env.memory_length, "step": run.step,
             "episodes": episodes, "seed": seed,
+            "actor_accuracy": actor_accuracy(run, posts, cue, seed),
             **measure(state, cue, config.env.memory_length, gate, seed)}
+
+
+def actor_accuracy(run, posts, cue: np.ndarray, seed: int) -> float | None:
+    """How often the actor's mode at the query (stored step L), from the filtered state, takes
+    the action the cue asks for (the reward's +1); ``None`` for a run without an actor."""
+    if run.params.actor is None:
+        return None
+    length = run.config.env.memory_length
+    query = jax.tree.map(lambda x: x[:, length], posts)
+    feat = jax.vmap(run.world_model.dynamics.feat)(query)
+    action = run.actor_policy("eval")(feat, jax.random.PRNGKey(seed))
+    return float((np.asarray(action).argmax(-1) == (cue > 0)).mean())
 
 
 LEGEND = (
@@ -179,9 +194,10 @@ LEGEND = (
     "whose gate opens at step 1 or 2 with probabilities >= 0.5 apart under the two cues, "
     "`cue_gate_gap_max` the largest such gap and `null_cue_gate_gap_max` the same with the "
     "cues shuffled; `readout_*`, the held-out accuracy of a linear readout of the cue from all "
-    "units and from the held cue units only (0.5: chance).")
-COLUMNS = ("cue_units", "cue_units_held", "units_held", "cue_gated_units", "cue_gate_gap_max",
-           "null_cue_gate_gap_max", "readout_all", "readout_held", "max_dprime")
+    "units and from the held cue units only (0.5: chance); `actor_accuracy`, how often the "
+    "actor's mode at the query, from the same states, takes the action the cue asks for.")
+COLUMNS = ("actor_accuracy", "cue_units", "cue_units_held", "units_held", "cue_gated_units",
+           "cue_gate_gap_max", "null_cue_gate_gap_max", "readout_all", "readout_held", "max_dprime")
 
 
 def table(records: Sequence[dict]) -> str:

@@ -66,7 +66,8 @@ from vsgjax.loop.rundir import METRICS_FILE
 from vsgjax.registry.agents import agent_entry
 
 CUE_UNITS_DIR = "cue_units"  # the experiment's folder of experiments.cue_units records
-CUE_KEYS = ("cue_units", "cue_units_held", "cue_gated_units", "readout_all", "readout_held")
+CUE_KEYS = ("cue_units", "cue_units_held", "cue_gated_units", "readout_all", "readout_held",
+            "actor_accuracy")
 BSUITE_EPISODES = 10_000  # bsuite's sweep: training episodes per memory length
 GATE_KEYS = ("open", "closed_run_p90", "null_run_p90", "closed_run_max", "null_run_max",
              "prob_step1", "prob_other_steps", "live_units", "open_live", "live_prob_step1",
@@ -383,7 +384,7 @@ def _per_seed(runs: list[SeedResult], key: str, digits: int = 0) -> str:
 def cue_markdown(data: MemoryLenData) -> list[str]:
     """Per series and L, each seed's cue units beside its success, where records exist."""
     rows = [["series", "L", "success", "cue units", "held to the query", "cue-gated units",
-             "readout: all units", "readout: held cue units"]]
+             "readout: all units", "readout: held cue units", "actor at the query"]]
     for name in data.series:
         for L in data.lengths:
             runs = [r for r in data.of(name, L) if r.cue]
@@ -397,6 +398,8 @@ def cue_markdown(data: MemoryLenData) -> list[str]:
             "checkpoint, on held-out random-policy episodes): units of the state whose cue "
             "separation d' at the query is >= 1, those closed from step 3 to the query in >= 90% "
             "of the episodes, units whose gate opens at the cue with probabilities >= 0.5 apart "
-            "under the two cues, and a linear readout's held-out accuracy of the cue from the "
-            "state (0.5: chance); — where a model has no gates or no held cue unit.", "",
+            "under the two cues, a linear readout's held-out accuracy of the cue from the "
+            "state (0.5: chance), and how often the actor's mode at the query takes the action "
+            "the cue asks for (a state that holds the cue with an actor at 0.5: the actor "
+            "failed, not the memory); — where a model has no gates or no held cue unit.", "",
             markdown_table(rows), ""]

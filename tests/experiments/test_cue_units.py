@@ -91,6 +91,7 @@ def test_a_trained_run_is_measured_and_reported(tmp_path):
     assert record["model"] == "vsg" and record["memory_length"] == 3 and record["step"] == 160
     assert 0 <= record["cue_units_held"] <= record["cue_units"] <= 128
     assert 0 <= record["cue_gate_gap_max"] <= 1 and 0 < record["open"] < 1
+    assert record["actor_accuracy"] * 32 == round(record["actor_accuracy"] * 32)  # episodes
     assert len(record["units"]) == cue_units.TOP_UNITS
     assert "| vsg-L3-s0 | 3 |" in (out / "report.md").read_text()
     assert cue_units.main(args) == 0  # measured again: the same record

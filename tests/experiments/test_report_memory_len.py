@@ -113,7 +113,7 @@ def test_cue_unit_records_sit_beside_the_success_of_their_checkpoint(tmp_path):
     cue_dir = tmp_path / "memory_len" / "cue_units"
     cue_dir.mkdir(parents=True)
     record = {"step": 200, "cue_units": 6, "cue_units_held": 3, "cue_gated_units": 12,
-              "readout_all": 1.0, "readout_held": 0.98}
+              "readout_all": 1.0, "readout_held": 0.98, "actor_accuracy": 0.97}
     for seed, step in ((0, 200), (1, 100)):  # seed 1's record is of an earlier checkpoint
         run = runs_by(experiment, "VSG-gatel0rd-lambda0.1-L20", seed)
         write_run(run, tmp_path, [1.0] * 20, 1.0)
@@ -122,11 +122,12 @@ def test_cue_unit_records_sit_beside_the_success_of_their_checkpoint(tmp_path):
     plain = runs_by(experiment, "DreamerV2-L20", 0)
     write_run(plain, tmp_path, [1.0] * 20, 0.0)
     (cue_dir / f"{plain.method_dir}-s0.json").write_text(json.dumps(
-        {"step": 200, "cue_units": 90, "readout_all": 0.99}))
+        {"step": 200, "cue_units": 90, "readout_all": 0.99, "actor_accuracy": 0.51}))
     with pytest.warns(ReportWarning, match="env step 100, the run ends at 200: left out"):
         data = memory_len_data(Context.create(experiment, tmp_path))
     assert data.of("VSG-gatel0rd-lambda0.1", 20)[1].cue == {}
     built = report.build_report(experiment, tmp_path, tmp_path / "out")
     section = next(s for s in built.sections if s.kind == "memory_len")
-    assert "| VSG-gatel0rd-lambda0.1 | 20 | 1.00 | 6 | 3 | 12 | 1.00 | 0.98 |" in section.markdown
-    assert "| DreamerV2 | 20 | 0.50 | 90 | — | — | 0.99 | — |" in section.markdown
+    table = section.markdown
+    assert "| VSG-gatel0rd-lambda0.1 | 20 | 1.00 | 6 | 3 | 12 | 1.00 | 0.98 | 0.97 |" in table
+    assert "| DreamerV2 | 20 | 0.50 | 90 | — | — | 0.99 | — | 0.51 |" in table
