@@ -119,10 +119,10 @@ def measure(state: np.ndarray, cue: np.ndarray, length: int, gate: np.ndarray | 
         "readout_held": readout_accuracy(state[:, length], cue, held_cue_units),
         "open": float((gate > 0).mean()),
     })
+    by_step = {step: open_by_cue(gate, cue, step) for step in WRITE_STEPS}
     for row in out["units"]:
         unit = row["unit"]
-        for step in WRITE_STEPS:
-            plus, minus = open_by_cue(gate, cue, step)
+        for step, (plus, minus) in by_step.items():
             row[f"open_step{step}"] = [float(plus[unit]), float(minus[unit])]
         row["held"] = float(held[unit])
         row["open"] = float((gate[:, :, unit] > 0).mean())
